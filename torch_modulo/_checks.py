@@ -1,0 +1,161 @@
+"""Input validation shared by every operation.
+
+Errors are the standard ``TypeError`` (wrong kind of object) and ``ValueError`` (right kind, bad value), and
+every message names the argument and the offending value, e.g.
+``"modulus must hold integers in [0, 256) for bits=8; got max 300.0"``.
+
+(Kornia's ``KORNIA_CHECK`` raises ``kornia.core.exceptions.BaseError``, which is not a ``ValueError`` in the
+Kornia release this project uses, so the checks are written here.)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+
+__all__ = [
+    "MAX_BITS",
+    "check_bits",
+    "check_finite",
+    "check_floating",
+    "check_image_shape",
+    "check_modulus",
+    "check_nonnegative",
+    "check_tensor",
+    "exposure_tensor",
+]
+
+#: Largest bit depth whose integers (up to 2**bits) each floating dtype holds exactly.
+MAX_BITS: dict[torch.dtype, int] = {
+    torch.float16: 11,
+    torch.bfloat16: 8,
+    torch.float32: 24,
+    torch.float64: 53,
+}
+
+
+def check_tensor(x: object, name: str) -> torch.Tensor:
+    """Raise ``TypeError`` unless ``x`` is a tensor; return it."""
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor; got {type(x).__name__}")
+    return x
+
+
+def check_floating(x: torch.Tensor, name: str) -> torch.Tensor:
+    """Raise ``TypeError`` unless ``x`` is a floating-point tensor."""
+    check_tensor(x, name)
+    if not x.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor; got dtype {x.dtype} (convert with .float())")
+    return x
+
+
+def check_bits(bits: object, dtype: torch.dtype = torch.float32) -> int:
+    """Validate a sensor bit depth for values stored in ``dtype`` and return it as ``int``.
+
+    A modulus of ``bits`` bits is held exactly by ``dtype`` only while ``2**bits`` is representable without
+    rounding: 24 bits in float32, 53 in float64, 11 in float16, 8 in bfloat16.
+    """
+    if isinstance(bits, bool) or not isinstance(bits, int | torch.SymInt):
+        if isinstance(bits, float) and bits.is_integer():
+            bits = int(bits)
+        else:
+            raise TypeError(f"bits must be an integer; got {bits!r}")
+    bits = int(bits)
+    if bits < 1:
+        raise ValueError(f"bits must be >= 1; got {bits}")
+    limit = MAX_BITS.get(dtype)
+    if limit is not None and bits > limit:
+        wider = " (use float64)" if dtype != torch.float64 else ""
+        raise ValueError(f"bits={bits} exceeds what {dtype} represents exactly (at most {limit} bits){wider}")
+    return bits
+
+
+def check_finite(x: torch.Tensor, name: str) -> torch.Tensor:
+    """Raise ``ValueError`` if ``x`` holds NaN or infinity; the message counts them."""
+    if x.numel() and not bool(torch.isfinite(x).all()):
+        n_nan = int(torch.isnan(x).sum())
+        n_inf = int(torch.isinf(x).sum())
+        raise ValueError(f"{name} must be finite; got {n_nan} NaN and {n_inf} Inf values")
+    return x
+
+
+def check_nonnegative(x: torch.Tensor, name: str) -> torch.Tensor:
+    """Raise ``ValueError`` if ``x`` is not finite or holds negative values."""
+    check_finite(x, name)
+    if x.numel():
+        lo = float(x.min())
+        if lo < 0:
+            raise ValueError(f"{name} must be >= 0; got min {lo}")
+    return x
+
+
+def check_modulus(modulus: torch.Tensor, bits: int, name: str = "modulus") -> torch.Tensor:
+    """Validate a modulus image: a floating tensor of integers in ``[0, 2**bits)``.
+
+    One fused pass computes the extremes and the integrality test; the slow diagnostic passes run only when
+    something is wrong.
+    """
+    check_floating(modulus, name)
+    check_bits(bits, modulus.dtype)
+    if modulus.numel() == 0:
+        return modulus
+    lo, hi = torch.aminmax(modulus)
+    lo_f, hi_f = float(lo), float(hi)
+    if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
+        check_finite(modulus, name)
+    period = 2**bits
+    if lo_f < 0 or hi_f >= period:
+        raise ValueError(f"{name} must hold integers in [0, {period}) for bits={bits}; got min {lo_f}, max {hi_f}")
+    if not bool(torch.equal(modulus, torch.floor(modulus))):
+        frac = modulus - torch.floor(modulus)
+        bad = modulus.flatten()[int(frac.flatten().argmax())]
+        raise ValueError(f"{name} must hold integers for bits={bits}; got non-integer value {float(bad)}")
+    return modulus
+
+
+def check_image_shape(x: torch.Tensor, name: str, min_dims: int = 2, max_dims: int = 4) -> torch.Tensor:
+    """Raise ``ValueError`` unless ``x`` has between ``min_dims`` and ``max_dims`` dimensions."""
+    if not min_dims <= x.dim() <= max_dims:
+        shapes = {2: "(H, W)", 3: "(C, H, W)", 4: "(B, C, H, W)", 5: "(B, M, C, H, W)"}
+        allowed = " or ".join(shapes[d] for d in range(max_dims, min_dims - 1, -1) if d in shapes)
+        raise ValueError(f"{name} must have shape {allowed}; got {tuple(x.shape)}")
+    return x
+
+
+def exposure_tensor(
+    exposure: float | Sequence[float] | torch.Tensor,
+    like: torch.Tensor,
+    name: str = "exposure",
+) -> torch.Tensor:
+    """Turn a positive finite exposure (float, sequence or tensor) into a tensor on ``like``'s device and dtype.
+
+    Raises:
+        TypeError: ``exposure`` is not a number, sequence of numbers or tensor.
+        ValueError: a value is not positive or not finite.
+    """
+    if isinstance(exposure, torch.Tensor):
+        if not (exposure.is_floating_point() or exposure.dtype in (torch.int32, torch.int64, torch.int16)):
+            raise TypeError(f"{name} must hold real numbers; got dtype {exposure.dtype}")
+        tau = exposure.to(device=like.device, dtype=like.dtype)
+    elif isinstance(exposure, bool):
+        raise TypeError(f"{name} must be a positive number or tensor; got {exposure!r}")
+    elif isinstance(exposure, int | float):
+        tau = torch.tensor(float(exposure), device=like.device, dtype=like.dtype)
+    elif isinstance(exposure, Sequence) and not isinstance(exposure, str):
+        try:
+            values = [float(v) for v in exposure]
+        except (TypeError, ValueError):
+            raise TypeError(f"{name} must be a sequence of numbers; got {exposure!r}") from None
+        tau = torch.tensor(values, device=like.device, dtype=like.dtype)
+    else:
+        raise TypeError(f"{name} must be a positive number, a sequence of numbers or a tensor; got {exposure!r}")
+    if tau.numel():
+        finite = torch.isfinite(tau)
+        if not bool(finite.all()):
+            raise ValueError(f"{name} must be finite; got {tau[~finite].flatten()[0].item()}")
+        lo = float(tau.min())
+        if lo <= 0:
+            raise ValueError(f"{name} must be positive; got {lo}")
+    return tau
