@@ -15,15 +15,55 @@ from torch_modulo.capture import (
     capture_modulo,
     modulo_wrap,
 )
+from torch_modulo.metrics import (
+    PSNR,
+    PSNRPU21,
+    ExactKShare,
+    PSNRLog,
+    PU21Encode,
+    SSIMToneMapped,
+    exact_k_map,
+    exact_k_share,
+    psnr,
+    psnr_log,
+    psnr_pu21,
+    pu21_encode,
+    ssim_tonemapped,
+)
+from torch_modulo.multishot import (
+    IntensityMerge,
+    MultiExposureUnwrap,
+    merge_intensity,
+    plan_exposures,
+    unwrap_multi,
+)
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "PSNR",
+    "PSNRPU21",
+    "ExactKShare",
+    "PSNRLog",
+    "PU21Encode",
+    "SSIMToneMapped",
+    "exact_k_map",
+    "exact_k_share",
+    "psnr",
+    "psnr_log",
+    "psnr_pu21",
+    "pu21_encode",
+    "ssim_tonemapped",
     "IntensityCapture",
+    "IntensityMerge",
+    "MultiExposureUnwrap",
     "ModuloCapture",
     "ModuloWrap",
     "__version__",
     "capture_intensity",
     "capture_modulo",
+    "merge_intensity",
     "modulo_wrap",
+    "plan_exposures",
+    "unwrap_multi",
 ]

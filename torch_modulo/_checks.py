@@ -17,6 +17,7 @@ import torch
 
 __all__ = [
     "MAX_BITS",
+    "all_integers",
     "check_bits",
     "check_finite",
     "check_floating",
@@ -73,21 +74,28 @@ def check_bits(bits: object, dtype: torch.dtype = torch.float32) -> int:
 
 
 def check_finite(x: torch.Tensor, name: str) -> torch.Tensor:
-    """Raise ``ValueError`` if ``x`` holds NaN or infinity; the message counts them."""
-    if x.numel() and not bool(torch.isfinite(x).all()):
-        n_nan = int(torch.isnan(x).sum())
-        n_inf = int(torch.isinf(x).sum())
-        raise ValueError(f"{name} must be finite; got {n_nan} NaN and {n_inf} Inf values")
+    """Raise ``ValueError`` if ``x`` holds NaN or infinity; the message counts them.
+
+    One reduction pass (NaN and Inf propagate into the extremes); the counting passes run only on failure.
+    """
+    if x.numel() and x.is_floating_point():
+        lo, hi = torch.aminmax(x.detach())
+        if not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
+            n_nan = int(torch.isnan(x).sum())
+            n_inf = int(torch.isinf(x).sum())
+            raise ValueError(f"{name} must be finite; got {n_nan} NaN and {n_inf} Inf values")
     return x
 
 
 def check_nonnegative(x: torch.Tensor, name: str) -> torch.Tensor:
-    """Raise ``ValueError`` if ``x`` is not finite or holds negative values."""
-    check_finite(x, name)
+    """Raise ``ValueError`` if ``x`` is not finite or holds negative values (one reduction pass when valid)."""
     if x.numel():
-        lo = float(x.min())
-        if lo < 0:
-            raise ValueError(f"{name} must be >= 0; got min {lo}")
+        lo, hi = torch.aminmax(x.detach())
+        lo_f, hi_f = float(lo), float(hi)
+        if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
+            check_finite(x, name)
+        if lo_f < 0:
+            raise ValueError(f"{name} must be >= 0; got min {lo_f}")
     return x
 
 
@@ -108,11 +116,27 @@ def check_modulus(modulus: torch.Tensor, bits: int, name: str = "modulus") -> to
     period = 2**bits
     if lo_f < 0 or hi_f >= period:
         raise ValueError(f"{name} must hold integers in [0, {period}) for bits={bits}; got min {lo_f}, max {hi_f}")
-    if not bool(torch.equal(modulus, torch.floor(modulus))):
+    if not all_integers(modulus):
         frac = modulus - torch.floor(modulus)
         bad = modulus.flatten()[int(frac.flatten().argmax())]
         raise ValueError(f"{name} must hold integers for bits={bits}; got non-integer value {float(bad)}")
     return modulus
+
+
+def all_integers(x: torch.Tensor, tile: int = 1 << 16) -> bool:
+    """True when every value of ``x`` is an integer; on the CPU it compares cache-sized tiles with one scratch."""
+    x = x.detach()
+    if not x.is_floating_point():
+        return True
+    if x.device.type != "cpu" or x.numel() <= tile:
+        return bool(torch.equal(x, torch.floor(x)))
+    flat = x.reshape(-1)
+    scratch = torch.empty(tile, dtype=x.dtype)
+    for start in range(0, flat.numel(), tile):
+        part = flat[start : start + tile]
+        if not torch.equal(torch.floor(part, out=scratch[: part.numel()]), part):
+            return False
+    return True
 
 
 def check_image_shape(x: torch.Tensor, name: str, min_dims: int = 2, max_dims: int = 4) -> torch.Tensor:

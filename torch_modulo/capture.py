@@ -45,28 +45,62 @@ def _needs_grad(*tensors: torch.Tensor) -> bool:
     return torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
 
 
-#: Elements per tile for in-place CPU kernels: small enough that a scratch tile stays in cache.
-CPU_TILE = 1 << 18
+#: Elements per tile for the in-place CPU kernels: small enough that a tile and its scratch stay in cache, so
+#: the data crosses main memory once (allocating and faulting in full-size temporaries costs more than the math).
+CPU_TILE = 1 << 17
 
 
-def _wrap_inplace(y: torch.Tensor, period: float) -> torch.Tensor:
+def _column_tiles(n: int, rows: int) -> list[slice]:
+    width = max(1024, CPU_TILE // max(rows, 1))
+    return [slice(start, min(start + width, n)) for start in range(0, n, width)]
+
+
+def _wrap_rows_(y: torch.Tensor, period: float, scratch: torch.Tensor) -> torch.Tensor:
     """``y <- y - period * floor(y / period)`` in place; exact for integer-valued ``y``.
 
-    ``period`` is a power of two, so ``y / period`` and the product are exact; the subtraction of two
-    multiples of ``ulp(y)`` is exact too. On the CPU the quotient goes through one cache-sized scratch tile
-    (allocating and faulting in a full-size temporary costs more than the arithmetic).
+    ``period`` is a power of two, so ``y / period`` and the product are exact, and the difference of two multiples
+    of ``ulp(y)`` is exact too.
     """
-    if y.device.type != "cpu" or not y.is_contiguous() or y.numel() <= CPU_TILE:
-        q = torch.mul(y, 1.0 / period).floor_()
-        return y.sub_(q, alpha=period)
-    flat = y.view(-1)
-    scratch = torch.empty(CPU_TILE, dtype=y.dtype)
-    for start in range(0, flat.numel(), CPU_TILE):
-        tile = flat[start : start + CPU_TILE]
-        q = scratch[: tile.numel()]
-        torch.mul(tile, 1.0 / period, out=q).floor_()
-        tile.sub_(q, alpha=period)
-    return y
+    torch.mul(y, 1.0 / period, out=scratch).floor_()
+    return y.sub_(scratch, alpha=period)
+
+
+def _as_rows(x: torch.Tensor, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | float] | None:
+    """View ``x`` as (rows, n) with one exposure per row, or None when the layout does not allow it."""
+    if not x.is_contiguous():
+        return None
+    if tau.dim() == 0:
+        return x.view(1, -1), float(tau)
+    if x.dim() >= 1 and tau.numel() == x.shape[0] and tau.shape == (x.shape[0],) + (1,) * (x.dim() - 1):
+        return x.view(x.shape[0], -1), tau.reshape(-1, 1)
+    return None
+
+
+def _elementwise_(
+    x: torch.Tensor, tau: torch.Tensor | float, period: float, *, floor: bool, clip_top: float | None
+) -> torch.Tensor:
+    """``wrap(floor(tau * x))`` (or clip instead of wrap) without autograd, tiled in cache on the CPU."""
+    tau_t = tau if isinstance(tau, torch.Tensor) else torch.tensor(tau, dtype=x.dtype, device=x.device)
+    rows = _as_rows(x, tau_t) if x.device.type == "cpu" else None
+    if rows is None:
+        y = torch.mul(x, tau)
+        if floor:
+            y.floor_()
+        return y.clamp_(max=clip_top) if clip_top is not None else _wrap_rows_(y, period, torch.empty_like(y))
+    flat, t = rows
+    out = torch.empty_like(flat)
+    tiles = _column_tiles(flat.shape[1], flat.shape[0])
+    scratch = torch.empty((flat.shape[0], tiles[0].stop - tiles[0].start if tiles else 0), dtype=x.dtype)
+    for cols in tiles:
+        o = out[:, cols]
+        torch.mul(flat[:, cols], t, out=o)
+        if floor:
+            o.floor_()
+        if clip_top is not None:
+            o.clamp_(max=clip_top)
+        else:
+            _wrap_rows_(o, period, scratch[:, : o.shape[1]])
+    return out.view(x.shape)
 
 
 def _broadcast_exposure(tau: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -111,29 +145,31 @@ def modulo_wrap(counts: torch.Tensor, bits: int = 8) -> torch.Tensor:
     if _needs_grad(counts):
         out = counts - period * torch.floor(counts / period).detach()
     else:
-        out = _wrap_inplace(counts.clone(), period)
+        out = _elementwise_(counts, 1.0, period, floor=False, clip_top=None)
     # Tiny negative non-integers can round up to exactly ``period``; keep the result in [0, period).
     if out.numel() and float(out.detach().max()) >= period:
         out = torch.where(out >= period, out - period, out)
     return out
 
 
-def _counts(
-    radiance: torch.Tensor, exposure: float | torch.Tensor, bits: int, straight_through: bool
-) -> tuple[torch.Tensor, int]:
-    """Validate and return ``floor(exposure * radiance)`` (with the chosen gradient) and ``bits``."""
+def _capture(
+    radiance: torch.Tensor, exposure: float | torch.Tensor, bits: int, straight_through: bool, clip: bool
+) -> torch.Tensor:
+    """Validate, then ``floor(exposure * radiance)`` wrapped (or clipped) with the chosen gradient."""
     check_floating(radiance, "radiance")
     bits = check_bits(bits, radiance.dtype)
     check_nonnegative(radiance, "radiance")
     tau = _broadcast_exposure(exposure_tensor(exposure, radiance), radiance)
-    if _needs_grad(radiance, tau):
-        y = radiance * tau
-        floored = torch.floor(y)
-        if straight_through:
-            floored = y + (floored - y).detach()
-        return floored, bits
-    y = torch.mul(radiance, tau)
-    return y.floor_(), bits
+    period = float(2**bits)
+    if not _needs_grad(radiance, tau):
+        return _elementwise_(radiance, tau, period, floor=True, clip_top=period - 1 if clip else None)
+    y = radiance * tau
+    counts = torch.floor(y)
+    if straight_through:
+        counts = y + (counts - y).detach()
+    if clip:
+        return torch.clamp(counts, max=period - 1)
+    return counts - period * torch.floor(counts / period).detach()
 
 
 def capture_modulo(
@@ -161,11 +197,7 @@ def capture_modulo(
         >>> capture_modulo(torch.tensor([0.5, 100.0, 300.0]), exposure=2.0, bits=8)
         tensor([  1., 200.,  88.])
     """
-    counts, bits = _counts(radiance, exposure, bits, straight_through)
-    period = float(2**bits)
-    if counts.requires_grad:
-        return counts - period * torch.floor(counts / period).detach()
-    return _wrap_inplace(counts, period)
+    return _capture(radiance, exposure, bits, straight_through, clip=False)
 
 
 def capture_intensity(
@@ -184,11 +216,7 @@ def capture_intensity(
         >>> capture_intensity(torch.tensor([0.5, 100.0, 300.0]), exposure=2.0, bits=8)
         tensor([  1., 200., 255.])
     """
-    counts, bits = _counts(radiance, exposure, bits, straight_through)
-    top = float(2**bits - 1)
-    if counts.requires_grad:
-        return torch.clamp(counts, max=top)
-    return counts.clamp_(max=top)
+    return _capture(radiance, exposure, bits, straight_through, clip=True)
 
 
 class ModuloWrap(nn.Module):

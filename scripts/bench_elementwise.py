@@ -1,0 +1,99 @@
+#!/usr/bin/env python
+"""Time the elementwise layers as a ratio to ``tensor.clone()`` of the same data, in the same run.
+
+BENCHMARKS.md: on a (8, 3, 1024, 1024) float32 batch, the goal is within 2x of clone() (memory-bandwidth bound).
+For the multi-shot unwrap the data is the (B, M, C, H, W) stack of moduli (M = 3 exposures), so its reference is
+the clone of that stack; every other operation is compared with the clone of its (B, C, H, W) input.
+
+Prints a table and a JSON summary (medians over ``--repeats`` runs, interleaved with the clone timings so that
+both see the same machine load).
+
+    python scripts/bench_elementwise.py                      # the full size
+    python scripts/bench_elementwise.py --shape 2 3 256 256  # a quick run
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from collections.abc import Callable
+
+import torch
+
+import torch_modulo as tm
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def _time(fn: Callable[[], object], device: torch.device) -> float:
+    _sync(device)
+    start = time.perf_counter()
+    fn()
+    _sync(device)
+    return time.perf_counter() - start
+
+
+def bench(name: str, fn: Callable[[], object], reference: torch.Tensor, repeats: int) -> dict[str, float | str]:
+    """Median time of ``fn`` and of ``reference.clone()``, measured alternately."""
+    device = reference.device
+    fn()
+    reference.clone()  # warm up both
+    op_times, clone_times = [], []
+    for _ in range(repeats):
+        clone_times.append(_time(reference.clone, device))
+        op_times.append(_time(fn, device))
+    op, ref = statistics.median(op_times), statistics.median(clone_times)
+    return {"op": name, "ms": 1e3 * op, "clone_ms": 1e3 * ref, "ratio": op / ref}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--shape", type=int, nargs=4, default=[8, 3, 1024, 1024], metavar=("B", "C", "H", "W"))
+    parser.add_argument("--exposures", type=float, nargs="+", default=[1.0, 200.0, 40000.0])
+    parser.add_argument("--bits", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
+    args = parser.parse_args()
+
+    device, dtype = torch.device(args.device), getattr(torch, args.dtype)
+    gen = torch.Generator().manual_seed(0)
+    # Radiance spanning ~16 stops so that the longest exposure rolls over many times.
+    radiance = torch.exp2(torch.rand(args.shape, generator=gen) * 16 - 15).to(device, dtype)
+    taus = args.exposures
+    moduli = torch.stack([tm.capture_modulo(radiance, t, args.bits) for t in taus], dim=1)
+    frames = torch.stack([tm.capture_intensity(radiance, t, args.bits) for t in taus], dim=1)
+    counts = torch.floor(radiance * taus[-1])
+
+    rows = [
+        bench("modulo_wrap", lambda: tm.modulo_wrap(counts, args.bits), counts, args.repeats),
+        bench("capture_modulo", lambda: tm.capture_modulo(radiance, taus[-1], args.bits), radiance, args.repeats),
+        bench("capture_intensity", lambda: tm.capture_intensity(radiance, taus[-1], args.bits), radiance, args.repeats),
+        bench("unwrap_multi robust", lambda: tm.unwrap_multi(moduli, taus, args.bits), moduli, args.repeats),
+        bench(
+            "unwrap_multi paper", lambda: tm.unwrap_multi(moduli, taus, args.bits, method="paper"), moduli, args.repeats
+        ),
+        bench("merge_intensity", lambda: tm.merge_intensity(frames, taus, args.bits), frames, args.repeats),
+    ]
+    print(f"shape {tuple(args.shape)} {args.dtype} on {device}, {torch.get_num_threads()} threads, M = {len(taus)}")
+    print(f"{'operation':<22}{'ms':>10}{'clone ms':>10}{'x clone':>9}")
+    for row in rows:
+        print(f"{row['op']:<22}{row['ms']:>10.1f}{row['clone_ms']:>10.1f}{row['ratio']:>9.2f}")
+    summary = {
+        "shape": args.shape,
+        "dtype": args.dtype,
+        "device": str(device),
+        "threads": torch.get_num_threads(),
+        "exposures": taus,
+        "ratios_to_clone": {row["op"]: round(float(row["ratio"]), 3) for row in rows},
+    }
+    print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

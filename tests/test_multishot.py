@@ -1,0 +1,296 @@
+"""Tests for torch_modulo/multishot.py: Eqs. 6-7, the robust rule, exposure planning and the intensity merge."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import torch_modulo as tm
+
+
+def _scene(shape: tuple[int, ...], stops: float, seed: int = 0, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """Random radiance spanning ``stops`` stops below 1 (so exposure 2**stops gives up to 2**stops counts)."""
+    gen = torch.Generator().manual_seed(seed)
+    return torch.exp2(-torch.rand(shape, generator=gen, dtype=torch.float64) * stops).to(dtype)
+
+
+def _stack(radiance: torch.Tensor, taus: list[float], bits: int) -> torch.Tensor:
+    return torch.stack([tm.capture_modulo(radiance, t, bits) for t in taus], dim=-4)
+
+
+def _ratios_to_taus(ratios: list[float]) -> list[float]:
+    taus = [1.0]
+    for r in ratios:
+        taus.append(taus[-1] * r)
+    return taus
+
+
+class TestUnwrapMulti:
+    def test_unit_hand_computed(self) -> None:
+        # bits = 4 (P = 16), exposures 1 and 10; radiance 1.65 -> counts 1 and 16 -> moduli 1 and 0.
+        moduli = torch.tensor([[[[1.0]]], [[[0.0]]]])  # (M, C, H, W)
+        # robust: k = round((10 * 1.5 - 0.5 - 0) / 16) = round(0.906) = 1 -> I = 16
+        assert tm.unwrap_multi(moduli, [1.0, 10.0], bits=4, return_counts=True).item() == 16.0
+        # paper (Eq. 6): k = floor(10 * 1 / 16) = 0 -> I = 0, wrong by one rollover
+        assert tm.unwrap_multi(moduli, [1.0, 10.0], bits=4, method="paper", return_counts=True).item() == 0.0
+        # radiance is counts / longest exposure (Eq. 7)
+        assert tm.unwrap_multi(moduli, [1.0, 10.0], bits=4).item() == pytest.approx(1.6)
+
+    def test_single_exposure_is_identity(self, device: torch.device, dtype: torch.dtype) -> None:
+        moduli = torch.tensor([[[[3.0, 200.0]]]], device=device, dtype=dtype)
+        out = tm.unwrap_multi(moduli, [4.0], bits=8)
+        assert torch.equal(out, moduli[0] / 4.0)
+
+    def test_non_integer_ratio_just_below_two_to_the_bits_is_ambiguous(self) -> None:
+        # For 2^N - 1 < r < 2^N the counts J = floor(tau E) behind one short-exposure count span up to 2^N + 1
+        # values, so no rule can be exact: documented, and the reason plan_exposures stays at <= 2^N - 1.
+        band = torch.linspace(0, 15.999, 40001, dtype=torch.float64).view(1, 1, 1, -1)
+        taus = [1.0, 15.15]
+        counts = tm.unwrap_multi(_stack(band, taus, 4), taus, 4, return_counts=True)
+        wrong = float((counts != torch.floor(band * 15.15)).double().mean())
+        assert 0 < wrong < 0.01
+
+    @pytest.mark.parametrize("bits", [4, 8, 12])
+    def test_exact_for_every_ratio_up_to_two_to_the_bits(self, bits: int) -> None:
+        radiance = _scene((1, 1, 16, 64), stops=3 * bits, seed=bits)
+        period = 2**bits
+        for ratio in sorted({2, 3, period // 2 - 1, period // 2 + 1, period - 1, period}):
+            taus = _ratios_to_taus([ratio, ratio])
+            scale = (period - 1) / (float(radiance.max()) + 1e-9)  # no rollover at the shortest exposure
+            moduli = _stack(radiance * scale, taus, bits)
+            counts = tm.unwrap_multi(moduli, taus, bits, return_counts=True)
+            assert torch.equal(counts, torch.floor(radiance * scale * taus[-1])), f"ratio {ratio}"
+
+    def test_paper_method_exact_at_ratio_two_to_the_bits_but_not_below(self) -> None:
+        radiance = _scene((1, 1, 32, 32), stops=20, seed=3) * 255
+        exact = _ratios_to_taus([256, 256])
+        truth = torch.floor(radiance * exact[-1])
+        assert torch.equal(tm.unwrap_multi(_stack(radiance, exact, 8), exact, 8, "paper", return_counts=True), truth)
+        taus = [1.0, 100.0, 10000.0]
+        truth = torch.floor(radiance * taus[-1])
+        paper = tm.unwrap_multi(_stack(radiance, taus, 8), taus, 8, "paper", return_counts=True)
+        robust = tm.unwrap_multi(_stack(radiance, taus, 8), taus, 8, "robust", return_counts=True)
+        assert torch.equal(robust, truth)
+        assert float((paper != truth).double().mean()) > 0.1
+
+    @settings(max_examples=30, deadline=None)
+    @given(
+        bits=st.integers(2, 10),
+        fractions=st.lists(st.floats(0.0, 1.0), min_size=1, max_size=3),
+        seed=st.integers(0, 2**16),
+    )
+    def test_property_recovers_counts_for_random_ratios(self, bits: int, fractions: list[float], seed: int) -> None:
+        period = 2**bits
+        ratios = [2.0 + f * (period - 3) for f in fractions]  # neighbouring ratios in [2, 2^bits - 1]
+        taus = _ratios_to_taus(ratios)
+        if taus[-1] * period > 2.0**50:
+            return
+        radiance = _scene((2, 2, 6, 7), stops=float(np.log2(taus[-1])) + bits, seed=seed) * (period - 1)
+        moduli = _stack(radiance, taus, bits)
+        counts = tm.unwrap_multi(moduli, taus, bits, return_counts=True)
+        assert torch.equal(counts, torch.floor(radiance * taus[-1]))
+
+    def test_float32_exact_up_to_two_to_the_24(self) -> None:
+        radiance = _scene((2, 3, 32, 32), stops=24, seed=7, dtype=torch.float64) * 255
+        taus = [1.0, 255.0, 65025.0]  # longest exposure reaches ~2^24 counts
+        truth = torch.floor(radiance * taus[-1])
+        assert float(truth.max()) < 2**24
+        moduli = _stack(radiance, taus, 8).float()
+        counts = tm.unwrap_multi(moduli, taus, 8, return_counts=True)
+        assert counts.dtype == torch.float32
+        assert torch.equal(counts.double(), truth)
+
+    def test_unsorted_and_per_batch_exposures(self, device: torch.device, dtype: torch.dtype) -> None:
+        radiance = _scene((3, 2, 5, 5), stops=14, seed=1, dtype=torch.float64) * 255
+        taus = torch.tensor([[1.0, 30.0, 900.0], [1.0, 200.0, 40000.0], [1.0, 2.0, 4.0]], dtype=torch.float64)
+        moduli = torch.stack([_stack(radiance[i], taus[i].tolist(), 8) for i in range(3)])
+        order = torch.tensor([[2, 0, 1], [1, 2, 0], [0, 1, 2]])
+        shuffled = torch.stack([moduli[i, order[i]] for i in range(3)])
+        shuffled_taus = torch.stack([taus[i, order[i]] for i in range(3)])
+        out = tm.unwrap_multi(shuffled.to(device, dtype), shuffled_taus.to(device), 8, return_counts=True)
+        truth = torch.floor(radiance * taus[:, -1].view(3, 1, 1, 1))
+        assert torch.equal(out.cpu().double(), truth)
+        assert out.dtype == dtype and out.device.type == device.type
+
+    def test_same_permutation_for_all_items(self) -> None:
+        radiance = _scene((2, 1, 4, 4), stops=12, seed=2) * 255
+        taus = [1.0, 50.0, 2500.0]
+        moduli = _stack(radiance, taus, 8)
+        perm = [2, 0, 1]
+        out = tm.unwrap_multi(moduli[:, perm], [taus[p] for p in perm], 8, return_counts=True)
+        assert torch.equal(out, torch.floor(radiance * taus[-1]))
+
+    @pytest.mark.parametrize("method", ["robust", "paper"])
+    def test_batched_equals_unbatched_and_empty_batch(self, method: str, device: torch.device) -> None:
+        radiance = _scene((4, 3, 6, 9), stops=14, seed=5) * 255
+        taus = [1.0, 37.0, 1369.0]
+        moduli = _stack(radiance, taus, 8).to(device)
+        batched = tm.unwrap_multi(moduli, taus, 8, method)
+        for i in range(4):
+            assert torch.equal(batched[i], tm.unwrap_multi(moduli[i], taus, 8, method))
+        empty = tm.unwrap_multi(moduli[:0], taus, 8, method)
+        assert empty.shape == (0, 3, 6, 9)
+
+    def test_large_input_spans_several_tiles(self) -> None:
+        radiance = _scene((3, 1, 300, 301), stops=16, seed=9) * 255
+        taus = [1.0, 150.0, 22500.0]
+        moduli = _stack(radiance, taus, 8).float()
+        counts = tm.unwrap_multi(moduli, taus, 8, return_counts=True)
+        assert torch.equal(counts.double(), torch.floor(radiance * taus[-1]))
+
+    def test_input_not_modified_and_no_grad(self) -> None:
+        moduli = _stack(_scene((1, 1, 4, 4), stops=10) * 255, [1.0, 4.0], 8).requires_grad_()
+        before = moduli.detach().clone()
+        out = tm.unwrap_multi(moduli, [1.0, 4.0], 8)
+        assert torch.equal(moduli.detach(), before)
+        assert not out.requires_grad
+
+    def test_module_equals_function(self) -> None:
+        moduli = _stack(_scene((2, 3, 4, 4), stops=12) * 255, [1.0, 64.0], 8)
+        layer = tm.MultiExposureUnwrap(bits=8, method="paper", return_counts=True)
+        assert torch.equal(
+            layer(moduli, [1.0, 64.0]), tm.unwrap_multi(moduli, [1.0, 64.0], 8, "paper", return_counts=True)
+        )
+        with pytest.raises(ValueError, match="'fast'"):
+            tm.MultiExposureUnwrap(method="fast")
+
+    @pytest.mark.parametrize(
+        ("moduli", "exposures", "error", "match"),
+        [
+            (torch.full((2, 1, 2, 2), 300.0), [1.0, 2.0], ValueError, r"\[0, 256\).*max 300.0"),
+            (torch.full((2, 1, 2, 2), -1.0), [1.0, 2.0], ValueError, "min -1.0"),
+            (torch.full((2, 1, 2, 2), 1.5), [1.0, 2.0], ValueError, "non-integer value 1.5"),
+            (torch.tensor([[[[1.0, float("nan")]]]]).expand(2, 1, 1, 2), [1.0, 2.0], ValueError, "NaN"),
+            (torch.zeros(2, 1, 2, 2), [1.0, 0.0], ValueError, "positive; got 0.0"),
+            (torch.zeros(2, 1, 2, 2), [1.0, float("nan")], ValueError, "finite"),
+            (torch.zeros(2, 1, 2, 2), [1.0, 2.0, 3.0], ValueError, r"\(M,\) = \(2,\)"),
+            (torch.zeros(2, 1, 2, 2), [1.0, 300.0], ValueError, r"300.0 / 1.0 = 300 exceeds 2\^bits = 256"),
+            (torch.zeros(2, 2), [1.0, 2.0], ValueError, r"\(B, M, C, H, W\)"),
+            (torch.zeros(2, 1, 2, 2, dtype=torch.int64), [1.0, 2.0], TypeError, "floating-point"),
+            ([[1.0]], [1.0], TypeError, "list"),
+            (torch.zeros(2, 1, 2, 2), "1,2", TypeError, "exposures"),
+        ],
+    )
+    def test_bad_input(self, moduli: object, exposures: object, error: type[Exception], match: str) -> None:
+        with pytest.raises(error, match=match):
+            tm.unwrap_multi(moduli, exposures, bits=8)  # type: ignore[arg-type]
+
+    def test_bad_bits_and_method(self) -> None:
+        moduli = torch.zeros(2, 1, 2, 2)
+        with pytest.raises(ValueError, match="bits=25"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], bits=25)
+        with pytest.raises(ValueError, match="'exact'"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], method="exact")
+
+    def test_bad_per_batch_ratio_names_batch_item(self) -> None:
+        with pytest.raises(ValueError, match="batch item 1"):
+            tm.unwrap_multi(torch.zeros(2, 2, 1, 2, 2), torch.tensor([[1.0, 2.0], [1.0, 257.0]]), bits=8)
+
+
+class TestRealScenes:
+    """unwrap_multi is exact on noise-free captures of real scenes for random neighbouring ratios in [2, 255]."""
+
+    def _load(self, path: Path, size: int = 96) -> torch.Tensor:
+        oiio = pytest.importorskip("OpenImageIO")
+        inp = oiio.ImageInput.open(str(path))
+        if inp is None:
+            pytest.skip(f"cannot read {path}")
+        pixels = inp.read_image("float")
+        inp.close()
+        image = torch.from_numpy(np.ascontiguousarray(pixels[..., :3])).permute(2, 0, 1).double().clamp_min(0)
+        return torch.nn.functional.interpolate(image[None], size=(size, size), mode="area")[0]
+
+    def test_exact_on_real_scenes(self, shared_hdr: Path) -> None:
+        files = sorted(shared_hdr.glob("*/*.hdr"))[:4] + sorted(shared_hdr.glob("polyhaven-cc0/*.exr"))[:4]
+        rng = np.random.default_rng(0)
+        wrong_paper = []
+        for path in files:
+            image = self._load(path)
+            ratios = rng.uniform(2, 255, size=2).tolist()
+            taus = _ratios_to_taus(ratios)
+            radiance = image * (255.0 / float(image.max()))
+            moduli = _stack(radiance, taus, 8)
+            truth = torch.floor(radiance * taus[-1])
+            assert torch.equal(tm.unwrap_multi(moduli, taus, 8, return_counts=True), truth), path.name
+            paper = tm.unwrap_multi(moduli, taus, 8, method="paper", return_counts=True)
+            wrong_paper.append(float((paper != truth).double().mean()))
+        assert max(wrong_paper) > 0.01  # Eq. 6 as printed fails on real scenes at such ratios
+
+
+class TestMergeIntensity:
+    def test_unit_hand_computed(self, device: torch.device, dtype: torch.dtype) -> None:
+        # 4 bits (top 15). Pixel 1: valid in both -> mean(5/1, 80/16) = 5; pixel 2: saturated at 16 -> 9/1.
+        frames = torch.tensor([[[[5.0, 9.0]]], [[[80.0 % 16 + 0.0, 15.0]]]], device=device, dtype=dtype)
+        frames[1, 0, 0, 0] = 15.0 - 1.0  # 14 counts at exposure 16 -> 0.875
+        out = tm.merge_intensity(frames, [1.0, 16.0], bits=4)
+        assert out.shape == (1, 1, 2)
+        assert out[0, 0, 0].item() == pytest.approx((5.0 + 14.0 / 16.0) / 2)
+        assert out[0, 0, 1].item() == pytest.approx(9.0)
+
+    def test_fallbacks(self) -> None:
+        frames = torch.tensor([[[[15.0, 0.0]]], [[[15.0, 0.0]]]])  # saturated everywhere; black everywhere
+        out = tm.merge_intensity(frames, [2.0, 8.0], bits=4)
+        assert out.flatten().tolist() == [7.5, 0.0]
+
+    def test_hat_weights_and_module(self) -> None:
+        frames = torch.tensor([[[[4.0]]], [[[12.0]]]])
+        # hat weights min(I, 15 - I): 4 and 3 -> (4 * 4 + 3 * 12 / 4) / 7
+        out = tm.IntensityMerge(bits=4, weights="hat")(frames, [1.0, 4.0])
+        assert out.item() == pytest.approx((4 * 4.0 + 3 * 3.0) / 7)
+        with pytest.raises(ValueError, match="'box'"):
+            tm.merge_intensity(frames, [1.0, 4.0], bits=4, weights="box")
+
+    def test_modulo_beats_intensity_on_fig8_band(self) -> None:
+        # Paper Fig. 8: a band 0..255 seen by 4-bit cameras; 2 modulo captures at ratio 16 beat 5 intensity captures.
+        band = torch.linspace(0, 255, 2048, dtype=torch.float64).view(1, 1, 1, -1) / 16.0
+        mod_taus = [1.0, 16.0]
+        modulo = tm.unwrap_multi(_stack(band, mod_taus, 4), mod_taus, 4)
+        int_taus = [1.0, 2.0, 4.0, 8.0, 16.0]
+        frames = torch.stack([tm.capture_intensity(band, t, 4) for t in int_taus], dim=1)
+        intensity = tm.merge_intensity(frames, int_taus, 4)
+        err_mod = float((modulo - band).abs().mean())
+        err_int = float((intensity - band).abs().mean())
+        assert err_mod < err_int / 2
+
+
+class TestPlanExposures:
+    def test_paper_claim_three_captures_cover_24_stops(self) -> None:
+        taus = tm.plan_exposures(24, bits=8, max_ratio=256)
+        assert taus == [1.0, 256.0, 65536.0]
+
+    @pytest.mark.parametrize(("stops", "bits", "count"), [(8, 8, 1), (5, 8, 1), (9, 8, 2), (16, 8, 3), (24, 8, 4)])
+    def test_counts(self, stops: float, bits: int, count: int) -> None:
+        taus = tm.plan_exposures(stops, bits)
+        assert len(taus) == count
+        ratios = [b / a for a, b in zip(taus, taus[1:], strict=False)]
+        assert all(r <= 2**bits - 1 + 1e-9 for r in ratios)
+        if count > 1:
+            assert math.log2(taus[-1] / taus[0]) == pytest.approx(stops - bits)
+
+    def test_plan_then_unwrap_recovers_scene(self) -> None:
+        taus = tm.plan_exposures(20, bits=8, base=1.0)
+        radiance = _scene((1, 3, 16, 16), stops=20, seed=4) * 255.9
+        counts = tm.unwrap_multi(_stack(radiance, taus, 8), taus, 8, return_counts=True)
+        assert torch.equal(counts, torch.floor(radiance * taus[-1]))
+        assert float(counts.min()) >= 1.0  # the darkest pixel still gets a count
+
+    @pytest.mark.parametrize(
+        ("kwargs", "match"),
+        [
+            ({"stops": -1}, "stops"),
+            ({"stops": float("nan")}, "stops"),
+            ({"stops": 10, "base": 0.0}, "base"),
+            ({"stops": 10, "max_ratio": 1.0}, "max_ratio"),
+            ({"stops": 10, "max_ratio": 300}, "max_ratio"),
+            ({"stops": 10, "bits": 0}, "bits"),
+        ],
+    )
+    def test_bad_input(self, kwargs: dict, match: str) -> None:
+        with pytest.raises(ValueError, match=match):
+            tm.plan_exposures(**kwargs)
