@@ -11,7 +11,10 @@ from pathlib import Path
 import pytest
 import torch
 
-SHARED_HDR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hdr"
+SHARED_HDR = Path(__file__).resolve().parent.parent / "shared" / "data" / "hdr"
+
+# ``python -m torch_modulo`` runs the command line: keep the doctest collector from importing it.
+collect_ignore = ["torch_modulo/__main__.py"]
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
