@@ -42,6 +42,13 @@ class TestUnwrapMulti:
         # radiance is counts / longest exposure (Eq. 7)
         assert tm.unwrap_multi(moduli, [1.0, 10.0], bits=4).item() == pytest.approx(1.6)
 
+    def test_regression_rollover_count_never_negative_under_noise(self) -> None:
+        # A dark pixel read one count low in the short exposure (0 instead of 1) and high in the long one
+        # (modulus 255 at 8 bits) used to get k = -1, i.e. a negative count.
+        moduli = torch.tensor([[[[0.0]]], [[[255.0]]]])
+        counts = tm.unwrap_multi(moduli, [1.0, 2.0], bits=8, return_counts=True)
+        assert counts.item() == 255.0
+
     def test_single_exposure_is_identity(self, device: torch.device, dtype: torch.dtype) -> None:
         moduli = torch.tensor([[[[3.0, 200.0]]]], device=device, dtype=dtype)
         out = tm.unwrap_multi(moduli, [4.0], bits=8)

@@ -7,6 +7,7 @@ unwrapping by graph cuts (Eqs. 3-5), tone mapping, sensor adapters, data pipelin
 
 from __future__ import annotations
 
+from torch_modulo import data, io, sensors
 from torch_modulo.capture import (
     IntensityCapture,
     ModuloCapture,
@@ -60,6 +61,9 @@ __all__ = [
     "ModuloCapture",
     "ModuloWrap",
     "__version__",
+    "data",
+    "io",
+    "sensors",
     "capture_intensity",
     "capture_modulo",
     "merge_intensity",

@@ -206,7 +206,8 @@ def _unwrap_tiles(
                 continue
             s = scale[:, i - 1]
             if method == "robust":
-                acc.add_(0.5).mul_(s).sub_(m_i, alpha=inv_p).sub_(0.5 * inv_p).round_()
+                # k >= 0: under noise the rounding can ask for k = -1 on dark pixels; no counter runs backwards.
+                acc.add_(0.5).mul_(s).sub_(m_i, alpha=inv_p).sub_(0.5 * inv_p).round_().clamp_min_(0.0)
             else:
                 acc.mul_(s).floor_()
             torch.add(m_i, acc, alpha=period, out=acc)

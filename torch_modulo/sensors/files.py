@@ -1,0 +1,544 @@
+"""Frames of a real modulo camera from disk, and FrameStacks written to disk so that they read back identically.
+
+Where :class:`FileSensor` finds each frame's exposure and the bit depth, first match wins:
+
+1. the arguments ``exposures=`` (one per file, in file order) and ``bits=``;
+2. a folder manifest ``frames.json`` (written by :func:`write_frames`; also easy to write by hand)::
+
+       {"bits": 8, "frames": [{"file": "short.png", "exposure": 1.0},
+                              {"file": "long.png",  "exposure": 16.0}]}
+
+   Optional keys: ``"kind"`` (``"modulo"`` or ``"intensity"``), ``"metadata"`` (a dict), ``"exposures"`` (the
+   stack's exposures as (M,) or (B, M) lists), and per frame ``"batch"`` and ``"index"`` (its place in a
+   (B, M, C, H, W) stack; by default frames are the exposures of one scene, in the listed order);
+3. a JSON sidecar per frame, ``<file>.json`` or ``<stem>.json`` (``short.png.json`` or ``short.json``), with
+   ``"exposure"`` and ``"bits"``;
+4. the frame's own metadata (EXR attributes, or the metadata :func:`torch_modulo.io.write_image` stores in PNG and
+   TIFF): ``"exposure"`` (or ``"exposure_time"``, ``"ExposureTime"``) and ``"bits"`` (or ``"bit_depth"``).
+
+Image frames (.exr, .png, .tif, .tiff, .pfm, .hdr) are read with :func:`torch_modulo.io.read_image`: integer files
+give their raw values (a 12-bit camera frame stored in a 16-bit PNG reads as 0..4095). Headerless raw dumps are
+described by a :class:`RawFormat` (width, height, bit depth, byte order); packed formats (e.g. 12 bits in 1.5
+bytes) are not supported: unpack them to 8/16/32-bit containers first.
+
+A directory is read in file-name order, skipping hidden files (names starting with ``.``, such as the temporary
+files of an atomic write) and JSON files. Every error names the file.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import math
+import os
+import secrets
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from torch_modulo._checks import check_bits, check_modulus
+from torch_modulo.io import read_image, write_image
+from torch_modulo.sensors.frames import KINDS, FrameStack
+
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "MANIFEST",
+    "FileSensor",
+    "RawFormat",
+    "write_frames",
+]
+
+#: The folder manifest :func:`write_frames` writes and :class:`FileSensor` reads first.
+MANIFEST = "frames.json"
+#: Image files a folder is searched for.
+IMAGE_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm", ".hdr")
+_EXPOSURE_KEYS = ("exposure", "exposure_time", "ExposureTime")
+_BITS_KEYS = ("bits", "bit_depth")
+_FORMAT_TAG = "torch_modulo.frames"
+_DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32, "float64": torch.float64}
+
+
+@dataclass(frozen=True)
+class RawFormat:
+    """Layout of a headerless raw frame: ``height * width * channels`` unsigned integers, row-major, channels
+    interleaved (H, W, C), after ``offset`` header bytes to skip.
+
+    Args:
+        width, height: frame size in pixels.
+        bits: the sensor's bit depth (values must be below ``2**bits``).
+        byteorder: ``"little"`` or ``"big"``.
+        channels: samples per pixel.
+        sample_bytes: bytes per sample, 1, 2 or 4; default the smallest that holds ``bits``.
+        offset: bytes to skip at the start of each file.
+        extensions: file extensions that mark raw frames when a folder is read.
+
+    Example:
+        >>> RawFormat(width=640, height=512, bits=12).frame_bytes
+        655360
+    """
+
+    width: int
+    height: int
+    bits: int
+    byteorder: str = "little"
+    channels: int = 1
+    sample_bytes: int | None = None
+    offset: int = 0
+    extensions: tuple[str, ...] = (".raw", ".bin")
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height", "channels"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"RawFormat.{name} must be a positive int; got {value!r}")
+        bits = check_bits(self.bits, torch.float64)
+        if bits > 32:
+            raise ValueError(f"RawFormat.bits must be at most 32; got {bits}")
+        if self.byteorder not in ("little", "big"):
+            raise ValueError(f"RawFormat.byteorder must be 'little' or 'big'; got {self.byteorder!r}")
+        smallest = 1 if bits <= 8 else 2 if bits <= 16 else 4
+        nbytes = smallest if self.sample_bytes is None else self.sample_bytes
+        if nbytes not in (1, 2, 4) or nbytes < smallest:
+            raise ValueError(
+                f"RawFormat.sample_bytes must be 1, 2 or 4 and hold {bits} bits (at least {smallest}); "
+                f"got {self.sample_bytes!r}"
+            )
+        if isinstance(self.offset, bool) or not isinstance(self.offset, int) or self.offset < 0:
+            raise ValueError(f"RawFormat.offset must be an int >= 0; got {self.offset!r}")
+        object.__setattr__(self, "sample_bytes", nbytes)
+        object.__setattr__(self, "extensions", tuple(e.lower() for e in self.extensions))
+
+    @property
+    def numpy_dtype(self) -> np.dtype:
+        return np.dtype(f"{'<' if self.byteorder == 'little' else '>'}u{self.sample_bytes}")
+
+    @property
+    def frame_bytes(self) -> int:
+        """Expected file size in bytes, header included."""
+        return self.offset + self.width * self.height * self.channels * int(self.sample_bytes or 0)
+
+    def read(self, path: str | os.PathLike[str]) -> torch.Tensor:
+        """Read one raw frame as a float64 (C, H, W) tensor of its integer values."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(errno.ENOENT, "raw frame not found", str(path))
+        size = path.stat().st_size
+        if size != self.frame_bytes:
+            raise ValueError(
+                f"raw frame {path} has {size} bytes; expected {self.frame_bytes} for {self.width}x{self.height}x"
+                f"{self.channels} samples of {self.sample_bytes} bytes plus {self.offset} header bytes"
+            )
+        data = np.fromfile(path, dtype=self.numpy_dtype, offset=self.offset)
+        array = data.reshape(self.height, self.width, self.channels).astype(np.float64)
+        return torch.from_numpy(array).permute(2, 0, 1).contiguous()
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def _load_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise OSError(f"cannot read {path}: {exc}") from exc
+    except ValueError as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} must hold a JSON object; got {type(data).__name__}")
+    return data
+
+
+def _first(mapping: Mapping[str, Any], keys: Sequence[str]) -> Any:
+    for key in keys:
+        if key in mapping and mapping[key] is not None:
+            return mapping[key]
+    return None
+
+
+def _positive(value: Any, what: str, source: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{what} from {source} must be a positive number; got {value!r}")
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{what} from {source} must be a positive finite number; got {value}")
+    return value
+
+
+def _bits_value(value: Any, source: object) -> int:
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"bits from {source} must be an integer; got {value!r}")
+    try:
+        return check_bits(value, torch.float64)
+    except ValueError as exc:
+        raise ValueError(f"bits from {source}: {exc}") from None
+
+
+def _sidecar(path: Path) -> Path | None:
+    for candidate in (path.with_name(path.name + ".json"), path.with_suffix(".json")):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+@dataclass
+class _Frame:
+    path: Path
+    exposure: float | None = None
+    bits: int | None = None
+    batch: int = 0
+    index: int | None = None
+
+
+# ---------------------------------------------------------------------------------------------- reading
+
+
+class FileSensor:
+    """A sensor adapter for frames on disk: a folder or a list of files in, a :class:`FrameStack` out.
+
+    Args:
+        source: a folder (read with its ``frames.json`` manifest if present, otherwise every image or raw file in
+            name order) or a sequence of files (taken in the given order).
+        bits: the sensor's bit depth; overrides the files' metadata.
+        exposures: one exposure per file, in file order; overrides the files' metadata.
+        raw: how to read headerless raw dumps (files with ``raw.extensions``); None when there are none.
+        kind: ``"modulo"`` or ``"intensity"``; default the manifest's, else ``"modulo"``.
+        dtype: floating dtype of the frames; default the manifest's (what :func:`write_frames` was given), else
+            ``torch.float32``. Bits above 24 need ``torch.float64``.
+        device: where the frames go.
+
+    Raises (on construction, for a bad ``source`` or arguments; on :meth:`read`, for bad files):
+        FileNotFoundError: the folder or a file is missing.
+        OSError: a file cannot be read (not an image, truncated, ...).
+        ValueError: no frames, missing or bad exposure or bit depth, frames of different sizes, values not
+            integers in ``[0, 2**bits)``, a raw file of the wrong size, a bad manifest.
+
+    Example:
+        >>> import tempfile
+        >>> from torch_modulo.sensors import SimulatedModuloSensor, write_frames
+        >>> stack = SimulatedModuloSensor(bits=8, seed=0)(torch.rand(1, 3, 8, 8) * 300, [1.0, 16.0])
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     _ = write_frames(stack, folder, format="png")
+        ...     FileSensor(folder).read() == stack
+        True
+    """
+
+    def __init__(
+        self,
+        source: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+        *,
+        bits: int | None = None,
+        exposures: Sequence[float] | torch.Tensor | None = None,
+        raw: RawFormat | None = None,
+        kind: str | None = None,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> None:
+        if raw is not None and not isinstance(raw, RawFormat):
+            raise TypeError(f"raw must be a RawFormat or None; got {type(raw).__name__}")
+        if dtype is not None and dtype not in _DTYPES.values():
+            raise TypeError(f"dtype must be a floating torch dtype; got {dtype}")
+        if kind is not None and kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
+        self.raw = raw
+        self.bits = _bits_value(bits, "the bits argument") if bits is not None else None
+        if exposures is not None:
+            values = exposures.tolist() if isinstance(exposures, torch.Tensor) else list(exposures)
+            self.exposures: list[float] | None = [_positive(v, "exposure", "the exposures argument") for v in values]
+        else:
+            self.exposures = None
+        self.kind = kind
+        self.dtype = dtype
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        self.manifest: dict[str, Any] | None = None
+        self.manifest_path: Path | None = None
+        self.frames = self._list(source)
+        if self.exposures is not None and len(self.exposures) != len(self.frames):
+            raise ValueError(
+                f"exposures has {len(self.exposures)} values for {len(self.frames)} frames "
+                f"({', '.join(f.path.name for f in self.frames)})"
+            )
+
+    @property
+    def files(self) -> list[Path]:
+        """The frame files, in the order they are read."""
+        return [f.path for f in self.frames]
+
+    def _list(self, source: object) -> list[_Frame]:
+        if isinstance(source, str | os.PathLike):
+            folder = Path(source)
+            if not folder.exists():
+                raise FileNotFoundError(errno.ENOENT, "frame folder or file not found", str(folder))
+            if folder.is_file():
+                return [_Frame(folder)]
+            manifest = folder / MANIFEST
+            if manifest.is_file():
+                return self._from_manifest(manifest)
+            extensions = IMAGE_EXTENSIONS + (self.raw.extensions if self.raw is not None else ())
+            paths = sorted(
+                p
+                for p in folder.iterdir()
+                if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in extensions
+            )
+            if not paths:
+                raise ValueError(
+                    f"no frames in {folder}: expected files ending in {', '.join(extensions)}"
+                    + ("" if self.raw is not None else " (pass raw=RawFormat(...) for headerless raw dumps)")
+                )
+            return [_Frame(p) for p in paths]
+        if isinstance(source, Sequence) and not isinstance(source, bytes):
+            paths = []
+            for item in source:
+                if not isinstance(item, str | os.PathLike):
+                    raise TypeError(f"frame files must be str or os.PathLike; got {type(item).__name__}")
+                paths.append(Path(item))
+            if not paths:
+                raise ValueError("no frames: the list of files is empty")
+            return [_Frame(p) for p in paths]
+        raise TypeError(f"source must be a folder, a file or a list of files; got {type(source).__name__}")
+
+    def _from_manifest(self, manifest: Path) -> list[_Frame]:
+        data = _load_json(manifest)
+        entries = data.get("frames")
+        if not isinstance(entries, list) or not entries:
+            raise ValueError(f'{manifest} must list the frames: "frames": [{{"file": ..., "exposure": ...}}]')
+        frames = []
+        for i, entry in enumerate(entries):
+            if isinstance(entry, str):
+                entry = {"file": entry}
+            if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+                raise ValueError(f'{manifest}: frame {i} must be a file name or an object with "file"; got {entry!r}')
+            path = manifest.parent / entry["file"]
+            frame = _Frame(path)
+            where = f"{manifest} (frame {entry['file']})"
+            if entry.get("exposure") is not None:
+                frame.exposure = _positive(entry["exposure"], "exposure", where)
+            if entry.get("bits") is not None:
+                frame.bits = _bits_value(entry["bits"], where)
+            for key in ("batch", "index"):
+                if key in entry:
+                    value = entry[key]
+                    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                        raise ValueError(f"{where}: {key!r} must be an int >= 0; got {value!r}")
+                    setattr(frame, key, value)
+            frames.append(frame)
+        if data.get("bits") is not None:
+            bits = _bits_value(data["bits"], manifest)
+            for frame in frames:
+                frame.bits = frame.bits if frame.bits is not None else bits
+        if data.get("kind") is not None and data["kind"] not in KINDS:
+            raise ValueError(f"{manifest}: kind must be one of {KINDS}; got {data['kind']!r}")
+        if data.get("metadata") is not None and not isinstance(data["metadata"], dict):
+            raise ValueError(f"{manifest}: metadata must be an object; got {type(data['metadata']).__name__}")
+        self.manifest = data
+        self.manifest_path = manifest
+        return frames
+
+    def _read_frame(self, frame: _Frame) -> tuple[torch.Tensor, dict[str, Any]]:
+        path = frame.path
+        if not path.exists():
+            raise FileNotFoundError(errno.ENOENT, "frame file not found", str(path))
+        if self.raw is not None and path.suffix.lower() in self.raw.extensions:
+            return self.raw.read(path), {"bits": self.raw.bits}
+        image, meta = read_image(path, with_metadata=True, dtype=torch.float64)
+        return image, meta  # type: ignore[return-value]
+
+    def read(self) -> FrameStack:
+        """Read every frame and return them as one :class:`FrameStack` (validated)."""
+        images: list[torch.Tensor] = []
+        taus: list[float] = []
+        bits_seen: dict[int, Path] = {}
+        for i, frame in enumerate(self.frames):
+            image, embedded = self._read_frame(frame)
+            sidecar_path = _sidecar(frame.path)
+            sidecar = _load_json(sidecar_path) if sidecar_path is not None else {}
+            if images and image.shape != images[0].shape:
+                raise ValueError(
+                    f"frame {frame.path} has shape {tuple(image.shape)} (C, H, W) but {self.frames[0].path} has "
+                    f"{tuple(images[0].shape)}: all frames must have the same size"
+                )
+            # exposure
+            if self.exposures is not None:
+                tau = self.exposures[i]
+            elif frame.exposure is not None:
+                tau = frame.exposure
+            elif _first(sidecar, _EXPOSURE_KEYS) is not None:
+                tau = _positive(_first(sidecar, _EXPOSURE_KEYS), "exposure", sidecar_path)
+            elif _first(embedded, _EXPOSURE_KEYS) is not None:
+                tau = _positive(_first(embedded, _EXPOSURE_KEYS), "exposure", f"the metadata of {frame.path}")
+            else:
+                raise ValueError(
+                    f"no exposure for frame {frame.path}: give exposures=[...], list it in {MANIFEST}, write a "
+                    f'sidecar {frame.path.name}.json with "exposure", or store "exposure" in the file\'s metadata'
+                )
+            # bit depth
+            if self.bits is not None:
+                bits = self.bits
+            elif frame.bits is not None:
+                bits = frame.bits
+            elif _first(sidecar, _BITS_KEYS) is not None:
+                bits = _bits_value(_first(sidecar, _BITS_KEYS), sidecar_path)
+            elif _first(embedded, _BITS_KEYS) is not None:
+                bits = _bits_value(_first(embedded, _BITS_KEYS), f"the metadata of {frame.path}")
+            else:
+                raise ValueError(
+                    f'no bit depth for frame {frame.path}: give bits=..., put "bits" in {MANIFEST} or a sidecar '
+                    f'{frame.path.name}.json, or store "bits" in the file\'s metadata'
+                )
+            if bits_seen and bits not in bits_seen:
+                other_bits, other = next(iter(bits_seen.items()))
+                raise ValueError(
+                    f"frame {frame.path} has bits={bits} but {other} has bits={other_bits}: one stack has one bit depth"
+                )
+            bits_seen.setdefault(bits, frame.path)
+            check_modulus(image, bits, f"frame {frame.path}")
+            images.append(image)
+            taus.append(tau)
+        bits = next(iter(bits_seen))
+        return self._assemble(images, taus, bits)
+
+    def _assemble(self, images: list[torch.Tensor], taus: list[float], bits: int) -> FrameStack:
+        data = self.manifest or {}
+        where = self.manifest_path
+        kind = self.kind or data.get("kind") or "modulo"
+        metadata = dict(data.get("metadata") or {})
+        # Place each frame at (batch, exposure index); frames without an index follow each other in order.
+        slots: dict[tuple[int, int], int] = {}
+        counters: dict[int, int] = {}
+        for n, frame in enumerate(self.frames):
+            m = frame.index if frame.index is not None else counters.get(frame.batch, 0)
+            counters[frame.batch] = max(counters.get(frame.batch, 0), m + 1)
+            if (frame.batch, m) in slots:
+                raise ValueError(f"{where}: two frames for batch {frame.batch}, exposure {m}")
+            slots[(frame.batch, m)] = n
+        b, m_count = max(counters) + 1, max(counters.values())
+        missing = [(i, j) for i in range(b) for j in range(m_count) if (i, j) not in slots]
+        if missing:
+            raise ValueError(f"{where}: no frame for (batch, exposure) {missing[0]} of a {b} x {m_count} stack")
+        moduli = torch.stack([torch.stack([images[slots[(i, j)]] for j in range(m_count)]) for i in range(b)])
+        tau = torch.tensor([[taus[slots[(i, j)]] for j in range(m_count)] for i in range(b)], dtype=torch.float64)
+        stored = data.get("exposures")
+        if stored is not None and self.exposures is None:
+            try:
+                stored_tau = torch.tensor(stored, dtype=torch.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"{where}: exposures must be a list of numbers; got {stored!r}") from None
+            if stored_tau.shape not in ((m_count,), (b, m_count)) or not torch.equal(
+                stored_tau.expand(b, m_count), tau
+            ):
+                raise ValueError(f"{where}: exposures {stored} disagree with the frames' exposures {tau.tolist()}")
+            tau = stored_tau
+        elif b == 1:
+            tau = tau[0]
+        dtype = self.dtype
+        if dtype is None:
+            name = data.get("dtype")
+            dtype = _DTYPES.get(name, torch.float32) if isinstance(name, str) else torch.float32
+        moduli = moduli.to(device=self.device, dtype=dtype)
+        return FrameStack(moduli, tau, bits, metadata, kind=kind)
+
+    __call__ = read
+
+    def __repr__(self) -> str:
+        return f"FileSensor({len(self.frames)} frames, first {self.frames[0].path})"
+
+
+# ---------------------------------------------------------------------------------------------- writing
+
+
+def _json_ready(value: Any, where: str) -> Any:
+    try:
+        json.dumps(value, allow_nan=True)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{where} must be JSON-serialisable to be written: {exc}") from None
+    return value
+
+
+def write_frames(
+    stack: FrameStack,
+    folder: str | os.PathLike[str],
+    *,
+    format: str = "exr",
+    prefix: str = "frame",
+) -> Path:
+    """Write a :class:`FrameStack` to a folder so that ``FileSensor(folder).read()`` gives it back exactly.
+
+    One file per frame, ``{prefix}_b{batch:03d}_m{index:02d}.{ext}``, each with its exposure and bit depth in its
+    own metadata, plus the manifest ``frames.json`` (written last, atomically) with the bit depth, kind, exposures,
+    metadata and layout.
+
+    Args:
+        stack: the frames.
+        folder: destination folder (created if missing). Files of the same names are replaced.
+        format: ``"exr"`` (half for bits <= 11, else float; up to 24 bits), ``"png"`` or ``"tiff"`` (8-bit for
+            bits <= 8, else 16-bit; up to 16 bits).
+        prefix: file name prefix.
+
+    Returns:
+        The manifest's path.
+
+    Raises:
+        TypeError: ``stack`` is not a FrameStack, or its metadata is not JSON-serialisable.
+        ValueError: unknown format, or a bit depth the format cannot hold.
+
+    Example:
+        >>> import tempfile
+        >>> stack = FrameStack(torch.tensor([[[[0.0, 5.0]]], [[[9.0, 250.0]]]]), [1.0, 4.0], bits=8)
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     manifest = write_frames(stack, folder)
+        ...     sorted(p.name for p in manifest.parent.iterdir())
+        ['frame_b000_m00.exr', 'frame_b000_m01.exr', 'frames.json']
+    """
+    if not isinstance(stack, FrameStack):
+        raise TypeError(f"stack must be a FrameStack; got {type(stack).__name__}")
+    formats = {"exr": ".exr", "png": ".png", "tiff": ".tif", "tif": ".tif"}
+    if format not in formats:
+        raise ValueError(f"format must be one of {sorted(formats)}; got {format!r}")
+    if not isinstance(prefix, str) or not prefix or os.sep in prefix or prefix.startswith("."):
+        raise ValueError(f"prefix must be a plain, non-hidden file name prefix; got {prefix!r}")
+    bits = stack.bits
+    ext = formats[format]
+    if ext == ".exr":
+        if bits > 24:
+            raise ValueError(f"EXR frames hold at most 24 bits exactly (float32); got bits={bits}")
+        dtype = "half" if bits <= 11 else "float"
+    else:
+        if bits > 16:
+            raise ValueError(f"{format.upper()} frames hold at most 16 bits; got bits={bits} (use format='exr')")
+        dtype = "uint8" if bits <= 8 else "uint16"
+    metadata = _json_ready(stack.metadata, "stack.metadata")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    taus = stack.exposure_matrix().tolist()
+    moduli = stack.moduli.detach().cpu()
+    entries = []
+    for b in range(stack.batch_size):
+        for m in range(stack.num_exposures):
+            name = f"{prefix}_b{b:03d}_m{m:02d}{ext}"
+            write_image(folder / name, moduli[b, m], {"exposure": taus[b][m], "bits": bits}, dtype=dtype)
+            entries.append({"file": name, "batch": b, "index": m, "exposure": taus[b][m]})
+    manifest = {
+        "format": _FORMAT_TAG,
+        "version": 1,
+        "bits": bits,
+        "kind": stack.kind,
+        "shape": list(stack.shape),
+        "dtype": str(stack.dtype).replace("torch.", ""),
+        "exposures": stack.exposures.tolist(),
+        "metadata": metadata,
+        "frames": entries,
+    }
+    path = folder / MANIFEST
+    tmp = folder / f".{MANIFEST}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+    try:
+        tmp.write_text(json.dumps(manifest, indent=1, allow_nan=True))
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path

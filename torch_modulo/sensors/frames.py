@@ -1,0 +1,222 @@
+"""FrameStack: what every sensor adapter hands downstream, whether the frames were simulated or read from disk.
+
+Data flows one way: a sensor (simulated or file-backed) makes a :class:`FrameStack`, and the unwrapping functions
+take its fields (``tm.unwrap_multi(stack.moduli, stack.exposures, stack.bits)``). The stack has no unwrapping
+methods of its own.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import torch
+
+from torch_modulo._checks import check_bits, check_floating, check_modulus, exposure_tensor
+
+__all__ = ["KINDS", "FrameStack"]
+
+#: ``"modulo"``: modulus images (Eq. 1); ``"intensity"``: frames of a conventional sensor, clipped at 2^bits - 1.
+KINDS = ("modulo", "intensity")
+
+
+class FrameStack:
+    """Frames of one or more scenes, each taken at several exposures, with the sensor's bit depth.
+
+    Validated on construction: ``moduli`` must be a floating tensor of integers in ``[0, 2**bits)``, the exposures
+    positive and finite with one per frame. The tensors are stored as given (no copy); a (M, C, H, W) stack is
+    stored as (1, M, C, H, W). Exposures are kept in float64 (float32 on MPS), so values read from metadata keep
+    every digit.
+
+    Args:
+        moduli: (B, M, C, H, W) frames (or (M, C, H, W) for one scene); the modulus images of a modulo sensor, or
+            the clipped frames of a conventional one (``kind="intensity"``).
+        exposures: ``tau`` > 0 per frame: (M,) shared by the batch, or (B, M); any sequence or tensor.
+        bits: the sensor's bit depth ``N``.
+        metadata: JSON-compatible facts about the capture (sensor, noise model, file names, ...); copied.
+        kind: ``"modulo"`` (default) or ``"intensity"``.
+
+    Raises:
+        TypeError: ``moduli`` is not a floating tensor, ``exposures`` not numbers, ``metadata`` not a dict.
+        ValueError: wrong shapes, values outside ``[0, 2**bits)`` or not integers, non-positive exposures,
+            unknown ``kind``.
+
+    Example:
+        >>> from torch_modulo import capture_modulo
+        >>> radiance = torch.tensor([[[[3.0, 40.0]]]])                          # (B, C, H, W)
+        >>> taus = [1.0, 8.0]
+        >>> stack = FrameStack(torch.stack([capture_modulo(radiance, t, bits=8) for t in taus], 1), taus, bits=8)
+        >>> stack
+        FrameStack(moduli=(1, 2, 1, 1, 2) float32 on cpu, exposures=[1.0, 8.0], bits=8, kind='modulo')
+        >>> stack.moduli[0, :, 0, 0]
+        tensor([[ 3., 40.],
+                [24., 64.]])
+    """
+
+    __slots__ = ("_bits", "_exposures", "_kind", "_metadata", "_moduli")
+
+    def __init__(
+        self,
+        moduli: torch.Tensor,
+        exposures: Sequence[float] | torch.Tensor,
+        bits: int = 8,
+        metadata: Mapping[str, Any] | None = None,
+        *,
+        kind: str = "modulo",
+    ) -> None:
+        check_floating(moduli, "moduli")
+        if moduli.dim() == 4:
+            moduli = moduli.unsqueeze(0)
+        if moduli.dim() != 5:
+            raise ValueError(f"moduli must have shape (B, M, C, H, W) or (M, C, H, W); got {tuple(moduli.shape)}")
+        b, m = moduli.shape[:2]
+        if m < 1:
+            raise ValueError(f"moduli must hold at least one exposure (M >= 1); got shape {tuple(moduli.shape)}")
+        bits = check_bits(bits, moduli.dtype)
+        check_modulus(moduli, bits, "moduli")
+        tau = exposure_tensor(exposures, torch.empty(0, dtype=_exposure_dtype(moduli.device), device=moduli.device))
+        if not (tau.shape == (m,) or tau.shape == (b, m)):
+            raise ValueError(
+                f"exposures must have shape (M,) = ({m},) or (B, M) = ({b}, {m}) for moduli of shape "
+                f"{tuple(moduli.shape)}; got {tuple(tau.shape)}"
+            )
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
+        if metadata is None:
+            metadata = {}
+        if not isinstance(metadata, Mapping):
+            raise TypeError(f"metadata must be a dict; got {type(metadata).__name__}")
+        self._moduli = moduli
+        self._exposures = tau
+        self._bits = bits
+        self._metadata = copy.deepcopy(dict(metadata))
+        self._kind = kind
+
+    # ------------------------------------------------------------------------------------------ fields
+
+    @property
+    def moduli(self) -> torch.Tensor:
+        """The frames, (B, M, C, H, W)."""
+        return self._moduli
+
+    @property
+    def frames(self) -> torch.Tensor:
+        """Alias of :attr:`moduli` that reads better for ``kind="intensity"`` stacks."""
+        return self._moduli
+
+    @property
+    def exposures(self) -> torch.Tensor:
+        """Exposure per frame, (M,) or (B, M), float64 (float32 on MPS), on the frames' device."""
+        return self._exposures
+
+    @property
+    def bits(self) -> int:
+        """The sensor's bit depth ``N``: frames hold integers in ``[0, 2**bits)``."""
+        return self._bits
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        """Facts about the capture (a dict; mutating it changes this stack's metadata only)."""
+        return self._metadata
+
+    @property
+    def kind(self) -> str:
+        """``"modulo"`` or ``"intensity"``."""
+        return self._kind
+
+    @property
+    def batch_size(self) -> int:
+        return int(self._moduli.shape[0])
+
+    @property
+    def num_exposures(self) -> int:
+        return int(self._moduli.shape[1])
+
+    @property
+    def shape(self) -> torch.Size:
+        return self._moduli.shape
+
+    @property
+    def device(self) -> torch.device:
+        return self._moduli.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self._moduli.dtype
+
+    def exposure_matrix(self) -> torch.Tensor:
+        """Exposures as (B, M), whichever shape they were given in."""
+        return self._exposures.expand(self.batch_size, self.num_exposures)
+
+    # -------------------------------------------------------------------------------------- conversion
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> FrameStack:
+        """A stack on another device and/or with another floating dtype for the frames (validated again)."""
+        moduli = self._moduli.to(device=device, dtype=dtype)
+        return FrameStack(
+            moduli,
+            self._exposures.to(device=moduli.device, dtype=_exposure_dtype(moduli.device)),
+            self._bits,
+            self._metadata,
+            kind=self._kind,
+        )
+
+    def __len__(self) -> int:
+        return self.batch_size
+
+    def __getitem__(self, index: int | slice) -> FrameStack:
+        """Batch items: ``stack[i]`` is a stack of one scene (B = 1), ``stack[i:j]`` several."""
+        if isinstance(index, bool) or not isinstance(index, int | slice):
+            raise TypeError(f"FrameStack index must be an int or a slice; got {type(index).__name__}")
+        if isinstance(index, int):
+            if not -self.batch_size <= index < self.batch_size:
+                raise IndexError(f"batch index {index} out of range for a FrameStack of {self.batch_size} items")
+            index = slice(index % self.batch_size, index % self.batch_size + 1)
+        moduli = self._moduli[index]
+        tau = self._exposures if self._exposures.dim() == 1 else self._exposures[index]
+        return FrameStack(moduli, tau, self._bits, self._metadata, kind=self._kind)
+
+    # --------------------------------------------------------------------------------------- comparison
+
+    def __eq__(self, other: object) -> bool:
+        """Exact equality of frames (values, shape, dtype), exposures, bits, kind and metadata."""
+        if not isinstance(other, FrameStack):
+            return NotImplemented
+        return (
+            self._bits == other._bits
+            and self._kind == other._kind
+            and self._moduli.dtype == other._moduli.dtype
+            and self._moduli.shape == other._moduli.shape
+            and self._exposures.shape == other._exposures.shape
+            and bool(torch.equal(self._moduli.cpu(), other._moduli.cpu()))
+            and bool(torch.equal(self._exposures.cpu().double(), other._exposures.cpu().double()))
+            and _metadata_equal(self._metadata, other._metadata)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        shape = tuple(self._moduli.shape)
+        taus = self._exposures.tolist() if self._exposures.numel() <= 8 else f"{tuple(self._exposures.shape)}"
+        dtype = str(self._moduli.dtype).replace("torch.", "")
+        return (
+            f"FrameStack(moduli={shape} {dtype} on {self._moduli.device}, exposures={taus}, bits={self._bits}, "
+            f"kind={self._kind!r})"
+        )
+
+
+def _exposure_dtype(device: torch.device) -> torch.dtype:
+    return torch.float32 if device.type == "mps" else torch.float64
+
+
+def _metadata_equal(a: object, b: object) -> bool:
+    """Equality that treats NaN as equal to NaN (metadata may hold NaN floats)."""
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_metadata_equal(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(_metadata_equal(x, y) for x, y in zip(a, b, strict=True))
+    return bool(a == b)

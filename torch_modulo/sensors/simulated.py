@@ -1,0 +1,388 @@
+r"""Simulated sensors: a digital-pixel (DFPA) modulo sensor with a physical noise model, and a conventional sensor
+that shares the model but clips, for fair comparisons.
+
+The pixel of a digital-pixel focal plane array (paper Sec. 3, Fig. 3) integrates photo-current on a small
+capacitor; each time the capacitor reaches its threshold charge ``q`` (electrons per count) it is discharged and a
+pulse increments an ``N``-bit counter, which rolls over at ``2^N``. Per pixel and exposure ``tau``, in that order:
+
+1. expected charge (electrons): :math:`\lambda = q\,(\tau E g) + D \tau`, with ``E`` the radiance in counts per
+   unit exposure (DESIGN.md: a noise-free sensor reads ``floor(tau E)``), ``g`` the pixel's fixed-pattern gain
+   (photo-response non-uniformity, :math:`g \sim 1 + \sigma_g \mathcal N(0, 1)`, drawn once per sensor) and ``D``
+   the dark current in electrons per unit exposure;
+2. photon shot noise: the collected charge is :math:`e \sim \mathrm{Poisson}(\lambda)`;
+3. read/reset noise: :math:`e \mathrel{+}= \sigma_r \mathcal N(0, 1)` electrons;
+4. the pulse counter counts whole threshold charges: :math:`I = \max(\lfloor e / q \rfloor, 0)`;
+5. the counter keeps the low ``N`` bits (modulo sensor, Eq. 1: :math:`I_m = \mathrm{mod}(I, 2^N)`) or, for a
+   conventional sensor, the ADC clips: :math:`\min(I, 2^N - 1)`.
+
+With no noise (``noise=None``, or a :class:`NoiseModel` whose terms are all off) the result is exactly
+:func:`torch_modulo.capture_modulo` (or :func:`~torch_modulo.capture_intensity`).
+
+Statistics (for choosing parameters): in counts, the mean is about :math:`\lambda/q - 1/2` and the variance
+about :math:`(\lambda + \sigma_r^2)/q^2 + 1/12` (the ``1/2`` and ``1/12`` come from the counter's floor) once the
+charge spreads over a few thresholds (:math:`\sqrt{\lambda + \sigma_r^2} \gtrsim q`); with ``q = 1`` and no read
+noise the counts are exactly Poisson. A modulo sensor's low bits are therefore noisy where ``sqrt(tau E / q)``
+approaches ``2^N``: single-shot unwrapping needs the noise between neighbours to stay well below ``2^(N-1)``.
+
+Randomness: each sensor draws from its own ``torch.Generator`` (one per device) seeded with ``seed``, so the same
+seed gives the same frames on every run on the same device (CPU and CUDA streams differ). The fixed-pattern gain
+comes from a separate generator seeded with ``fpn_seed``, so it is the same for every capture of a sensor instance
+and for every instance with the same ``fpn_seed``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+from torch import nn
+
+from torch_modulo._checks import (
+    check_bits,
+    check_floating,
+    check_image_shape,
+    check_nonnegative,
+    exposure_tensor,
+)
+from torch_modulo.capture import capture_intensity, capture_modulo
+from torch_modulo.sensors.frames import FrameStack
+
+__all__ = [
+    "NoiseModel",
+    "SimulatedIntensitySensor",
+    "SimulatedModuloSensor",
+    "fixed_pattern_gain",
+    "simulate_capture",
+]
+
+
+def _nonnegative_number(value: object, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise TypeError(f"{name} must be a number; got {value!r}")
+    value = float(value)
+    if not math.isfinite(value) or value < 0:
+        raise ValueError(f"{name} must be finite and >= 0; got {value}")
+    return value
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Noise of a digital-pixel sensor (see the module docstring for the equations).
+
+    The default is a small, realistic noise: photon shot noise with one electron per count (a photon-counting
+    pixel, variance in counts = mean) and 1 electron rms read noise; no dark current, no fixed pattern.
+
+    Args:
+        electrons_per_count: ``q``, the threshold charge that makes one counter pulse (the quantisation step), > 0.
+            Larger values average shot noise down in counts: its variance is ``mean / q``.
+        read_noise: ``sigma_r``, read/reset noise in electrons rms per frame, >= 0 (``read_noise / q`` counts).
+        dark_current: ``D``, electrons per unit exposure, >= 0 (a dark frame's mean is ``D tau / q`` counts).
+        prnu: ``sigma_g``, relative standard deviation of the fixed-pattern gain (0.01 = 1 %), >= 0.
+        shot_noise: draw the collected charge from a Poisson distribution (True) or use its mean (False).
+
+    Raises:
+        TypeError: a parameter is not a number (or ``shot_noise`` not a bool).
+        ValueError: a parameter is negative or not finite, or ``electrons_per_count`` is 0.
+
+    Example:
+        >>> NoiseModel(read_noise=2.0).is_noiseless
+        False
+        >>> NoiseModel(shot_noise=False, read_noise=0.0).is_noiseless
+        True
+    """
+
+    electrons_per_count: float = 1.0
+    read_noise: float = 1.0
+    dark_current: float = 0.0
+    prnu: float = 0.0
+    shot_noise: bool = True
+
+    def __post_init__(self) -> None:
+        q = _nonnegative_number(self.electrons_per_count, "electrons_per_count")
+        if q == 0:
+            raise ValueError("electrons_per_count must be > 0; got 0.0")
+        object.__setattr__(self, "electrons_per_count", q)
+        for name in ("read_noise", "dark_current", "prnu"):
+            object.__setattr__(self, name, _nonnegative_number(getattr(self, name), name))
+        if not isinstance(self.shot_noise, bool):
+            raise TypeError(f"shot_noise must be a bool; got {self.shot_noise!r}")
+
+    @property
+    def is_noiseless(self) -> bool:
+        """True when every term is off: the sensor then reads ``floor(tau E)`` exactly."""
+        return not self.shot_noise and self.read_noise == 0 and self.dark_current == 0 and self.prnu == 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def fixed_pattern_gain(
+    shape: Sequence[int],
+    prnu: float,
+    *,
+    seed: int = 0,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> torch.Tensor:
+    """The fixed-pattern (PRNU) gain map ``g = max(1 + prnu * N(0, 1), 0)`` of a sensor, for pixels of ``shape``.
+
+    Drawn on the CPU in float64 from ``seed`` and then moved, so the pattern is the same on every device.
+
+    Example:
+        >>> g = fixed_pattern_gain((1, 64, 64), prnu=0.01, seed=3)
+        >>> torch.equal(g, fixed_pattern_gain((1, 64, 64), prnu=0.01, seed=3)), round(float(g.std()), 2)
+        (True, 0.01)
+    """
+    prnu = _nonnegative_number(prnu, "prnu")
+    generator = torch.Generator().manual_seed(int(seed))
+    gain = 1.0 + prnu * torch.randn(tuple(shape), generator=generator, dtype=torch.float64)
+    return gain.clamp_(min=0.0).to(device=device, dtype=dtype)
+
+
+def _stack_exposures(exposures: Sequence[float] | torch.Tensor, radiance: torch.Tensor, b: int) -> torch.Tensor:
+    """Exposures as a (1, M) or (B, M) tensor on the radiance's device and dtype."""
+    tau = exposure_tensor(exposures, radiance, "exposures")
+    if tau.dim() == 0:
+        tau = tau.reshape(1)
+    if tau.dim() == 1:
+        tau = tau.unsqueeze(0)
+    if tau.dim() != 2 or tau.shape[0] not in (1, b) or tau.shape[1] < 1:
+        raise ValueError(f"exposures must have shape (M,) or (B, M) with B = {b} and M >= 1; got {tuple(tau.shape)}")
+    return tau
+
+
+def simulate_capture(
+    radiance: torch.Tensor,
+    exposures: float | Sequence[float] | torch.Tensor,
+    bits: int = 8,
+    noise: NoiseModel | None = None,
+    *,
+    wrap: bool = True,
+    generator: torch.Generator | None = None,
+    gain: torch.Tensor | None = None,
+) -> torch.Tensor:
+    r"""Capture a radiance map at several exposures with a noisy modulo (or clipping) sensor.
+
+    Args:
+        radiance: ``E`` >= 0 in counts per unit exposure, (B, C, H, W) or (C, H, W).
+        exposures: ``tau`` > 0: a float, (M,) shared by the batch, or (B, M).
+        bits: counter bit depth ``N``.
+        noise: the :class:`NoiseModel`, or None for a noise-free sensor (then this equals
+            :func:`~torch_modulo.capture_modulo` exactly, unless a ``gain`` map is given).
+        wrap: True for a modulo sensor (Eq. 1), False for a conventional sensor that clips at ``2**bits - 1``.
+        generator: random source for shot and read noise (and for the gain map when ``gain`` is None); its device
+            must be the radiance's. None uses torch's global generator.
+        gain: fixed-pattern gain ``g``, broadcastable to (C, H, W) or (B, C, H, W); None draws one from
+            ``generator`` when ``noise.prnu > 0`` (a new pattern per call; sensors keep theirs fixed).
+
+    Returns:
+        Frames of integers in ``[0, 2**bits)``, (B, M, C, H, W) (or (M, C, H, W) for unbatched radiance), same
+        dtype and device as ``radiance``. No gradient (the counter is discrete).
+
+    Raises:
+        TypeError: ``radiance`` not a floating tensor, ``noise`` not a NoiseModel.
+        ValueError: negative or non-finite radiance, bad exposures or shapes, bad gain.
+
+    Example:
+        >>> radiance = torch.tensor([[[[0.5, 30.0, 300.0]]]])
+        >>> simulate_capture(radiance, [1.0, 4.0], bits=8)[0, :, 0, 0]              # noise-free: capture_modulo
+        tensor([[  0.,  30.,  44.],
+                [  2., 120., 176.]])
+        >>> g = torch.Generator().manual_seed(0)
+        >>> noisy = simulate_capture(radiance, [1.0, 4.0], bits=8, noise=NoiseModel(), generator=g)
+        >>> noisy.shape
+        torch.Size([1, 2, 1, 1, 3])
+    """
+    check_floating(radiance, "radiance")
+    check_image_shape(radiance, "radiance", min_dims=3, max_dims=4)
+    bits = check_bits(bits, radiance.dtype)
+    if noise is not None and not isinstance(noise, NoiseModel):
+        raise TypeError(f"noise must be a NoiseModel or None; got {type(noise).__name__}")
+    unbatched = radiance.dim() == 3
+    x = radiance.detach().unsqueeze(0) if unbatched else radiance.detach()
+    b = x.shape[0]
+    tau = _stack_exposures(exposures, x, b)
+    check_nonnegative(x, "radiance")
+
+    if gain is None and (noise is None or noise.is_noiseless):
+        # Exactly the noise-free capture models, one exposure at a time.
+        capture = capture_modulo if wrap else capture_intensity
+        cols = [capture(x, tau[:, i].expand(b) if b else tau[:, i].reshape(()), bits) for i in range(tau.shape[1])]
+        out = torch.stack(cols, dim=1)
+        return out[0] if unbatched else out
+
+    if noise is None:  # a gain map alone: a noise-free sensor with fixed-pattern gain
+        noise = NoiseModel(read_noise=0.0, shot_noise=False)
+    # Noise path: work in float32 (float64 for float64 input, or where counts reach 2^24, above which float32
+    # cannot hold every integer), then return the input's dtype.
+    work = torch.float64 if x.dtype == torch.float64 else torch.float32
+    x = x.to(work)
+    tau = _stack_exposures(exposures, x, b)
+    if gain is None and noise.prnu > 0:
+        gain = 1.0 + noise.prnu * torch.randn(x.shape[1:], generator=generator, device=x.device, dtype=work)
+        gain = gain.clamp_(min=0.0)
+    if gain is not None:
+        check_floating(gain, "gain")
+        check_nonnegative(gain, "gain")
+        try:
+            torch.broadcast_shapes(gain.shape, x.shape)
+        except RuntimeError:
+            raise ValueError(
+                f"gain of shape {tuple(gain.shape)} does not broadcast against radiance of shape {tuple(x.shape)}"
+            ) from None
+        x = x * gain.to(device=x.device, dtype=work)
+    q = noise.electrons_per_count
+    if work == torch.float32 and x.numel() and x.device.type != "mps":
+        peak = float(x.max()) * float(tau.max())
+        if (peak + noise.dark_current * float(tau.max()) / q) * max(q, 1.0) >= 2**24:
+            work = torch.float64
+            x, tau = x.double(), _stack_exposures(exposures, x.double(), b)
+    t = tau.view(tau.shape[0], tau.shape[1], 1, 1, 1)
+    counts = x.unsqueeze(1) * t  # expected counts tau E g, (B, M, C, H, W)
+    if noise.dark_current:
+        counts = counts + t * (noise.dark_current / q)
+    if noise.shot_noise:
+        electrons = torch.poisson(counts * q, generator=generator)
+    else:
+        electrons = counts * q
+    if noise.read_noise:
+        electrons = electrons + noise.read_noise * torch.randn(
+            electrons.shape, generator=generator, device=electrons.device, dtype=electrons.dtype
+        )
+    counts = torch.floor(electrons / q).clamp_(min=0.0)
+    period = float(2**bits)
+    if wrap:
+        counts = counts - period * torch.floor(counts / period)
+    else:
+        counts = counts.clamp_(max=period - 1)
+    counts = counts.to(radiance.dtype)
+    return counts[0] if unbatched else counts
+
+
+class _SimulatedSensor(nn.Module):
+    _wrap: bool = True
+    _kind: str = "modulo"
+
+    def __init__(
+        self,
+        bits: int = 8,
+        noise: NoiseModel | None = NoiseModel(),  # noqa: B008 (frozen, immutable default)
+        *,
+        seed: int = 0,
+        fpn_seed: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.bits = check_bits(bits, torch.float64)
+        if noise is not None and not isinstance(noise, NoiseModel):
+            raise TypeError(f"noise must be a NoiseModel or None; got {type(noise).__name__}")
+        for name, value in (("seed", seed), ("fpn_seed", fpn_seed)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+                raise TypeError(f"{name} must be an int; got {value!r}")
+        self.noise = noise
+        self.seed = int(seed)
+        self.fpn_seed = int(fpn_seed) if fpn_seed is not None else self.seed + 1
+        self._generators: dict[torch.device, torch.Generator] = {}
+        self._gains: dict[tuple[Any, ...], torch.Tensor] = {}
+
+    def manual_seed(self, seed: int) -> _SimulatedSensor:
+        """Restart the shot/read noise streams from ``seed`` (the fixed pattern is kept). Returns the sensor."""
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise TypeError(f"seed must be an int; got {seed!r}")
+        self.seed = int(seed)
+        self._generators.clear()
+        return self
+
+    def generator(self, device: torch.device | str) -> torch.Generator:
+        """This sensor's random generator on ``device`` (created from ``seed`` on first use)."""
+        device = torch.device(device)
+        if device.type == "cuda" and device.index is None:
+            device = torch.device("cuda", torch.cuda.current_device())
+        if device not in self._generators:
+            self._generators[device] = torch.Generator(device=device).manual_seed(self.seed)
+        return self._generators[device]
+
+    def gain_map(self, shape: Sequence[int], device: torch.device | str, dtype: torch.dtype) -> torch.Tensor | None:
+        """The fixed-pattern gain for pixels of ``shape`` (C, H, W), or None without PRNU; same for every call."""
+        if self.noise is None or self.noise.prnu == 0:
+            return None
+        key = (tuple(shape), str(device), dtype)
+        if key not in self._gains:
+            self._gains[key] = fixed_pattern_gain(
+                shape, self.noise.prnu, seed=self.fpn_seed, device=device, dtype=dtype
+            )
+        return self._gains[key]
+
+    def forward(self, radiance: torch.Tensor, exposures: float | Sequence[float] | torch.Tensor) -> FrameStack:
+        """Capture ``radiance`` (B, C, H, W) or (C, H, W) at each exposure; returns a :class:`FrameStack`."""
+        check_floating(radiance, "radiance")
+        check_image_shape(radiance, "radiance", min_dims=3, max_dims=4)
+        batched = radiance if radiance.dim() == 4 else radiance.unsqueeze(0)
+        gain = self.gain_map(batched.shape[1:], batched.device, torch.promote_types(batched.dtype, torch.float32))
+        generator = self.generator(batched.device) if self.noise is not None else None
+        frames = simulate_capture(
+            batched, exposures, self.bits, self.noise, wrap=self._wrap, generator=generator, gain=gain
+        )
+        tau = exposure_tensor(exposures, torch.empty(0, dtype=torch.float64, device=batched.device), "exposures")
+        if tau.dim() == 0:
+            tau = tau.reshape(1)
+        metadata = {
+            "sensor": type(self).__name__,
+            "noise": self.noise.to_dict() if self.noise is not None else None,
+            "seed": self.seed,
+            "fpn_seed": self.fpn_seed,
+        }
+        return FrameStack(frames, tau, self.bits, metadata, kind=self._kind)
+
+    capture = forward
+
+    def extra_repr(self) -> str:
+        return f"bits={self.bits}, noise={self.noise}, seed={self.seed}, fpn_seed={self.fpn_seed}"
+
+
+class SimulatedModuloSensor(_SimulatedSensor):
+    """A simulated digital-pixel modulo sensor (paper Sec. 3): radiance and exposures in, a FrameStack out.
+
+    Args:
+        bits: counter bit depth ``N``.
+        noise: a :class:`NoiseModel` (default: shot noise and 1 e- read noise), or None for the noise-free
+            sensor of Eq. 1 (exactly :func:`~torch_modulo.capture_modulo`).
+        seed: seed of the shot/read noise generator; the same seed gives the same frames on every run.
+        fpn_seed: seed of the fixed-pattern gain (default ``seed + 1``); fixed for the sensor's lifetime.
+
+    Shape:
+        - Input: radiance (B, C, H, W) or (C, H, W); exposures (M,) or (B, M).
+        - Output: :class:`FrameStack` with moduli (B, M, C, H, W).
+
+    Example:
+        >>> sensor = SimulatedModuloSensor(bits=8, noise=None)
+        >>> stack = sensor(torch.tensor([[[[3.0, 40.0]]]]), [1.0, 8.0])
+        >>> stack.moduli[0, :, 0, 0]
+        tensor([[ 3., 40.],
+                [24., 64.]])
+        >>> stack.kind, stack.bits
+        ('modulo', 8)
+    """
+
+    _wrap = True
+    _kind = "modulo"
+
+
+class SimulatedIntensitySensor(_SimulatedSensor):
+    """A conventional sensor with the same noise model as :class:`SimulatedModuloSensor` that clips at
+    ``2**bits - 1`` instead of wrapping; with the same seeds both see the same noise, so the only difference
+    between their frames is the wrap versus the clip.
+
+    Example:
+        >>> stack = SimulatedIntensitySensor(bits=8, noise=None)(torch.tensor([[[[3.0, 40.0]]]]), [1.0, 8.0])
+        >>> stack.frames[0, :, 0, 0]
+        tensor([[  3.,  40.],
+                [ 24., 255.]])
+        >>> stack.kind
+        'intensity'
+    """
+
+    _wrap = False
+    _kind = "intensity"
