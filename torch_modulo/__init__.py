@@ -38,10 +38,32 @@ from torch_modulo.multishot import (
     plan_exposures,
     unwrap_multi,
 )
+from torch_modulo.tonemap import (
+    ClaheToneMap,
+    GammaToneMap,
+    HistogramToneMap,
+    LogToneMap,
+    ReinhardToneMap,
+    tonemap_clahe,
+    tonemap_gamma,
+    tonemap_histogram,
+    tonemap_log,
+    tonemap_reinhard,
+)
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "ClaheToneMap",
+    "GammaToneMap",
+    "HistogramToneMap",
+    "LogToneMap",
+    "ReinhardToneMap",
+    "tonemap_clahe",
+    "tonemap_gamma",
+    "tonemap_histogram",
+    "tonemap_log",
+    "tonemap_reinhard",
     "PSNR",
     "PSNRPU21",
     "ExactKShare",
