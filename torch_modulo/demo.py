@@ -7,7 +7,7 @@
 2. Single shot: unwrap the one modulus image by graph cuts (Eqs. 3-5).
 3. Multi shot: three modulo captures (neighbouring ratio 64, the shortest without rollover), unwrapped by rollover
    counting (Eqs. 6-7), against the conventional merge of three clipped intensity captures with the same exposures.
-4. Tone-map everything with Larson et al.'s histogram adjustment and write EXRs, PNGs, one labelled comparison image
+4. Tone-map everything with Larson et al.'s histogram adjustment (sRGB-encoded) and write EXRs, PNGs, one labelled comparison image
    and ``summary.json``.
 """
 
@@ -139,12 +139,12 @@ def run_demo(
     # Tone-map and write.
     start = time.perf_counter()
     display = {
-        "truth": tonemap_histogram(radiance),
-        "intensity": (intensity / (2**bits - 1)).clamp(0, 1) ** (1 / 2.2),
+        "truth": tonemap_histogram(radiance, srgb=True),
+        "intensity": (intensity / (2**bits - 1)) ** (1 / 2.2),  # linear counts, gamma-encoded for display
         "modulus": (modulus / (2**bits - 1)).clamp(0, 1),
-        "single_shot": tonemap_histogram(restored),
-        "multi_shot": tonemap_histogram(multi_radiance),
-        "intensity_merge": tonemap_histogram(merged),
+        "single_shot": tonemap_histogram(restored, srgb=True),
+        "multi_shot": tonemap_histogram(multi_radiance, srgb=True),
+        "intensity_merge": tonemap_histogram(merged, srgb=True),
     }
     timings["tonemap_s"] = time.perf_counter() - start
     written = []

@@ -1,0 +1,465 @@
+"""End-to-end tests of the ``torch-modulo`` folder commands (torch_modulo/cli.py) on small generated scenes."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from torch_modulo import capture_modulo, merge_intensity, unwrap_multi
+from torch_modulo.batch import MARKER_FOLDER
+from torch_modulo.cli import build_parser, main
+from torch_modulo.io import read_image, read_metadata, write_image
+from torch_modulo.sensors import FileSensor, FrameStack, write_frames
+from torch_modulo.tonemap import tonemap_clahe, tonemap_histogram, tonemap_reinhard
+
+ROOT = Path(__file__).resolve().parent.parent
+TAUS = [1.0, 256.0, 65536.0]
+
+
+def _scene(seed: int, h: int = 12, w: int = 16, channels: int = 3) -> torch.Tensor:
+    """A small HDR scene spanning about 16 stops: a smooth exponential ramp times a random colour, plus texture."""
+    g = torch.Generator().manual_seed(seed)
+    y = torch.linspace(0, 1, h).view(h, 1)
+    x = torch.linspace(0, 1, w).view(1, w)
+    ramp = torch.exp2(16 * (0.6 * x + 0.4 * y) - 4)  # 1/16 .. 4096
+    colour = 0.5 + torch.rand(channels, 1, 1, generator=g)
+    texture = 1 + 0.1 * torch.rand(channels, h, w, generator=g)
+    return (ramp * colour * texture).float()
+
+
+@pytest.fixture
+def scenes(tmp_path: Path) -> Path:
+    """IN/ with three scenes: a.exr, b.hdr (RGBE) and sub/c.exr (a small negative value, as lossy files have)."""
+    folder = tmp_path / "in"
+    (folder / "sub").mkdir(parents=True)
+    write_image(folder / "a.exr", _scene(1))
+    write_image(folder / "b.hdr", _scene(2))
+    c = _scene(3)
+    c[0, 0, 0] = -0.01
+    write_image(folder / "sub" / "c.exr", c)
+    (folder / "notes.txt").write_text("not an image: ignored")
+    return folder
+
+
+def _digest(folder: Path) -> dict[str, tuple[str, int]]:
+    """Content hash and modification time of every file under folder (to prove inputs are never touched)."""
+    return {
+        p.relative_to(folder).as_posix(): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def _cli(*args: Any) -> int:
+    return main([str(a) for a in args] + ["--no-progress"])
+
+
+def _report(out: Path, command: str) -> dict[str, Any]:
+    return json.loads((out / f"{command}-report.json").read_text())
+
+
+def _names(entries: list[dict[str, Any]]) -> list[str]:
+    return [e["input"] for e in entries]
+
+
+def _truth(path: Path) -> torch.Tensor:
+    """What simulate captures from a file: its values clamped at 0, scaled so the maximum reads 255 at tau = 1."""
+    x = read_image(path, dtype=torch.float64).clamp_min(0)
+    return x * (255.0 / float(x.max()))
+
+
+# --------------------------------------------------------------------------------------------------- simulate
+
+
+class TestSimulate:
+    def test_end_to_end(self, scenes: Path, tmp_path: Path) -> None:
+        before = _digest(scenes)
+        out = tmp_path / "stacks"
+        assert _cli("simulate", scenes, out, "--bits", 8, "--exposures", "1,256,65536", "--workers", 1) == 0
+        assert _digest(scenes) == before
+        report = _report(out, "simulate")
+        assert _names(report["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
+        assert report["counts"]["failed"] == 0 and report["options"]["exposures"] == TAUS
+        for name, folder in (("a.exr", out / "a"), ("b.hdr", out / "b"), ("sub/c.exr", out / "sub" / "c")):
+            stack = FileSensor(folder, dtype=torch.float64).read()
+            assert stack.bits == 8 and stack.exposures.tolist() == TAUS and stack.kind == "modulo"
+            truth = read_image(folder / "radiance.exr", dtype=torch.float64)
+            expected = _truth(scenes / name)
+            torch.testing.assert_close(truth, expected, rtol=1e-6, atol=0)  # float32 file
+            # noise-free: the frames are Eq. 1 of the stored truth
+            for m, tau in enumerate(TAUS):
+                assert torch.equal(stack.moduli[0, m], capture_modulo(truth, tau, bits=8))
+            assert stack.metadata["source"] == name
+            assert stack.metadata["radiance_scale"] == pytest.approx(255.0 / float(
+                read_image(scenes / name, dtype=torch.float64).clamp_min(0).max()))
+            meta = read_metadata(folder / "frame_b000_m02.exr")
+            assert meta["bits"] == 8 and meta["exposure"] == 65536.0
+        assert _names(report["done"])[2] == "sub/c.exr" and report["done"][2]["negatives_clamped"] == 1
+
+    def test_noise_is_reproducible_whatever_the_workers(self, scenes: Path, tmp_path: Path) -> None:
+        runs = {}
+        for label, workers, seed in (("w1", 1, 3), ("w2", 2, 3), ("seed4", 1, 4)):
+            out = tmp_path / label
+            assert _cli("simulate", scenes, out, "--noise", "read=2,prnu=0.01", "--seed", seed,
+                        "--workers", workers) == 0
+            runs[label] = {s: FileSensor(out / s).read() for s in ("a", "b", "sub/c")}
+        assert all(runs["w1"][s] == runs["w2"][s] for s in runs["w1"])
+        assert all(not torch.equal(runs["w1"][s].moduli, runs["seed4"][s].moduli) for s in runs["w1"])
+        assert runs["w1"]["a"].metadata["noise"]["read_noise"] == 2.0
+        # different scenes draw different noise (per-scene seeds)
+        assert runs["w1"]["a"].metadata["seed"] != runs["w1"]["b"].metadata["seed"]
+
+    def test_png_frames_without_truth(self, scenes: Path, tmp_path: Path) -> None:
+        out = tmp_path / "png"
+        assert _cli("simulate", scenes / "a.exr", out, "--bits", 10, "--exposures", "1,32", "--format", "png",
+                    "--no-truth", "--scale", 2.5) == 0
+        assert sorted(p.name for p in (out / "a").iterdir()) == ["frame_b000_m00.png", "frame_b000_m01.png",
+                                                                 "frames.json"]
+        stack = FileSensor(out / "a", dtype=torch.float64).read()
+        x = read_image(scenes / "a.exr", dtype=torch.float64).clamp_min(0) * 2.5
+        assert stack.bits == 10
+        assert torch.equal(stack.moduli[0, 1], capture_modulo(x, 32.0, bits=10))
+
+    def test_extra_channels_are_dropped(self, tmp_path: Path) -> None:
+        (tmp_path / "in").mkdir()
+        rgb = _scene(5)
+        write_image(tmp_path / "in" / "rgba.exr", torch.cat([rgb, torch.ones(1, 12, 16)]))
+        write_image(tmp_path / "in" / "views.exr", torch.cat([rgb, _scene(6), _scene(7)]))  # like a multi-view EXR
+        write_image(tmp_path / "in" / "ya.exr", torch.cat([rgb[:1], torch.ones(1, 12, 16)]))
+        assert _cli("simulate", tmp_path / "in", tmp_path / "out", "--exposures", "1,16") == 0
+        for name, channels in (("rgba", 3), ("views", 3), ("ya", 1)):
+            stack = FileSensor(tmp_path / "out" / name, dtype=torch.float64).read()
+            assert stack.moduli.shape == (1, 2, channels, 12, 16)
+            truth = read_image(tmp_path / "out" / name / "radiance.exr", dtype=torch.float64)
+            expected = rgb[:channels].double() * (255.0 / float(rgb[:channels].max()))
+            torch.testing.assert_close(truth, expected.float().double(), rtol=0, atol=0)
+
+
+# ----------------------------------------------------------------------------------------------------- unwrap
+
+
+class TestUnwrap:
+    def test_multi_shot_end_to_end(self, scenes: Path, tmp_path: Path) -> None:
+        stacks, radiance = tmp_path / "stacks", tmp_path / "radiance"
+        assert _cli("simulate", scenes, stacks) == 0
+        before = _digest(stacks)
+        assert _cli("unwrap", stacks, radiance, "--workers", 2) == 0
+        assert _digest(stacks) == before
+        assert _names(_report(radiance, "unwrap")["done"]) == ["a", "b", "sub/c"]
+        for name in ("a", "b", "sub/c"):
+            restored, meta = read_image(radiance / f"{name}.exr", with_metadata=True, dtype=torch.float64)
+            truth = read_image(stacks / name / "radiance.exr", dtype=torch.float64)
+            # exact rollover counts: the radiance is floor(tau_max E) / tau_max
+            expected = torch.floor(truth * TAUS[-1]) / TAUS[-1]
+            torch.testing.assert_close(restored, expected, rtol=2**-23, atol=0)
+            assert meta["bits"] == 8 and meta["exposures"] == TAUS and meta["method"] == "robust"
+
+    def test_intensity_stack_is_merged(self, tmp_path: Path) -> None:
+        frames = torch.stack([torch.floor(_scene(6) * t).clamp(max=255) for t in (0.05, 1.0, 20.0)])
+        stack = FrameStack(frames, [0.05, 1.0, 20.0], bits=8, kind="intensity")
+        write_frames(stack, tmp_path / "in" / "clipped")
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out") == 0
+        restored, meta = read_image(tmp_path / "out" / "clipped.exr", with_metadata=True, dtype=torch.float64)
+        expected = merge_intensity(frames.double(), [0.05, 1.0, 20.0], bits=8)
+        torch.testing.assert_close(restored, expected, rtol=1e-6, atol=0)
+        assert meta["method"] == "merge_intensity"
+
+    def test_paper_method_and_bits_override(self, tmp_path: Path) -> None:
+        radiance = _scene(7) / 16  # max 256 * 1.6 / 16 < 255 at tau = 1
+        taus = [1.0, 100.0, 10000.0]
+        stack = FrameStack(torch.stack([capture_modulo(radiance, t, bits=8) for t in taus]), taus, bits=8)
+        write_frames(stack, tmp_path / "in" / "s")
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--method", "paper") == 0
+        restored = read_image(tmp_path / "out" / "s.exr", dtype=torch.float64)
+        expected = unwrap_multi(stack.moduli.double(), taus, bits=8, method="paper")[0]
+        torch.testing.assert_close(restored, expected.float().double(), rtol=0, atol=0)
+
+    def test_single_shot(self, tmp_path: Path) -> None:
+        singleshot = pytest.importorskip("torch_modulo.singleshot")
+        if not hasattr(singleshot, "unwrap_single"):
+            pytest.skip("torch_modulo.singleshot.unwrap_single is not there yet")
+        (tmp_path / "in").mkdir()
+        counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
+        modulus = torch.remainder(counts, 256)
+        write_image(tmp_path / "in" / "ramp.png", modulus, {"bits": 8, "exposure": 2.0})
+        write_image(tmp_path / "in" / "nobits.png", modulus)  # no bit depth anywhere: reported, not guessed
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single") == 1
+        report = _report(tmp_path / "out", "unwrap")
+        assert _names(report["done"]) == ["ramp.png"]
+        assert "no bit depth" in report["failed"][0]["error"] and "nobits.png" in report["failed"][0]["error"]
+        restored, meta = read_image(tmp_path / "out" / "ramp.exr", with_metadata=True, dtype=torch.float64)
+        expected = singleshot.unwrap_single(modulus.unsqueeze(0), 8)[0].double() / 2.0
+        torch.testing.assert_close(restored, expected)
+        torch.testing.assert_close(restored, counts.double() / 2.0)  # a smooth ramp unwraps exactly
+        assert meta["exposure"] == 2.0 and meta["method"] == "single" and meta["solver"] == "default"
+        # another solver is another option: the rerun redoes the image
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--solver", "fast", "--bits", 8) == 0
+        assert _names(_report(tmp_path / "out", "unwrap")["done"]) == ["nobits.png", "ramp.png"]
+        # the number of workers is not: the next rerun skips both
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--solver", "fast", "--bits", 8,
+                    "--workers", 1) == 0
+        assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["nobits.png", "ramp.png"]
+
+
+# ---------------------------------------------------------------------------------------------------- tonemap
+
+
+class TestTonemap:
+    def test_end_to_end(self, scenes: Path, tmp_path: Path) -> None:
+        before = _digest(scenes)
+        out = tmp_path / "png"
+        assert _cli("tonemap", scenes, out, "--workers", 2) == 0
+        assert _digest(scenes) == before
+        for name in ("a.exr", "b.hdr", "sub/c.exr"):
+            png = read_image(out / Path(name).with_suffix(".png"))
+            expected = torch.round(tonemap_histogram(read_image(scenes / name).clamp_min(0)) * 255)
+            assert torch.equal(png, expected)
+
+    def test_operator_and_parameters(self, scenes: Path, tmp_path: Path) -> None:
+        out = tmp_path / "png"
+        assert _cli("tonemap", scenes / "a.exr", out, "--op", "reinhard", "--param", "key=0.36", "--srgb",
+                    "--depth", 16) == 0
+        png, meta = read_image(out / "a.png", with_metadata=True)
+        expected = torch.round(tonemap_reinhard(read_image(scenes / "a.exr"), key=0.36, srgb=True) * 65535)
+        assert torch.equal(png, expected)
+        assert meta["op"] == "reinhard" and meta["params"] == {"key": 0.36} and meta["srgb"] is True
+
+    def test_tuple_parameter(self, scenes: Path, tmp_path: Path) -> None:
+        out = tmp_path / "png"
+        assert _cli("tonemap", scenes / "a.exr", out, "--op", "clahe", "--param", "grid_size=2,2") == 0
+        expected = torch.round(tonemap_clahe(read_image(scenes / "a.exr"), grid_size=(2, 2)) * 255)
+        assert torch.equal(read_image(out / "a.png"), expected)
+
+
+# ------------------------------------------------------------------------------------------ folder promises
+
+
+class TestFolderPromises:
+    def test_corrupted_inputs_among_good_ones(self, scenes: Path, tmp_path: Path) -> None:
+        (scenes / "garbage.exr").write_bytes(b"this is not an EXR file" * 10)
+        good = (scenes / "a.exr").read_bytes()
+        (scenes / "truncated.exr").write_bytes(good[: len(good) // 2])
+        write_image(scenes / "nan.exr", torch.full((3, 4, 4), float("nan")))
+        out = tmp_path / "png"
+        assert _cli("tonemap", scenes, out) == 1
+        report = _report(out, "tonemap")
+        assert _names(report["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
+        assert _names(report["failed"]) == ["garbage.exr", "nan.exr", "truncated.exr"]
+        errors = {e["input"]: e["error"] for e in report["failed"]}
+        assert errors["garbage.exr"].startswith("OSError: ") and "garbage.exr" in errors["garbage.exr"]
+        assert "truncated.exr" in errors["truncated.exr"]
+        assert errors["nan.exr"].startswith("ValueError: ") and "NaN" in errors["nan.exr"]
+        assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.png")) == ["a.png", "b.png", "sub/c.png"]
+
+    def test_rerun_after_a_partial_run(self, scenes: Path, tmp_path: Path) -> None:
+        out = tmp_path / "stacks"
+        assert _cli("simulate", scenes, out) == 0
+        kept = (out / "b" / "frame_b000_m00.exr").stat().st_mtime_ns
+        # a crash: one scene's output never renamed into place (a hidden temporary is all that is left), another
+        # finished without its done marker
+        import shutil
+
+        shutil.move(out / "a", out / ".a.tmp-999-dead")
+        (out / MARKER_FOLDER / "simulate" / "sub" / "c.exr.json").unlink()
+        assert _cli("simulate", scenes, out) == 0
+        report = _report(out, "simulate")
+        assert _names(report["done"]) == ["a.exr", "sub/c.exr"]
+        assert _names(report["skipped"]) == ["b.hdr"]
+        assert (out / "b" / "frame_b000_m00.exr").stat().st_mtime_ns == kept
+        assert FileSensor(out / "a").read().num_exposures == 3
+        # the same command with another option redoes everything
+        assert _cli("simulate", scenes, out, "--seed", 9, "--noise", "default") == 0
+        assert len(_report(out, "simulate")["done"]) == 3
+
+    def test_no_inputs(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        (tmp_path / "empty").mkdir()
+        assert _cli("unwrap", tmp_path / "empty", tmp_path / "out") == 1
+        assert "no frame stacks (folders with a frames.json manifest) found in" in capsys.readouterr().err
+
+    def test_ranks_from_the_environment(self, scenes: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        assert _cli("tonemap", scenes, tmp_path / "one") == 0
+        for rank in (0, 1):
+            monkeypatch.setenv("RANK", str(rank))
+            monkeypatch.setenv("WORLD_SIZE", "2")
+            assert _cli("tonemap", scenes, tmp_path / "two") == 0
+            part = json.loads((tmp_path / "two" / f"tonemap-report.rank{rank}.json").read_text())
+            assert _names(part["done"]) == [["a.exr", "sub/c.exr"], ["b.hdr"]][rank]
+        for name in ("a.png", "b.png", "sub/c.png"):
+            assert torch.equal(read_image(tmp_path / "one" / name), read_image(tmp_path / "two" / name))
+        merged = _report(tmp_path / "two", "tonemap")
+        assert merged["parts"] == [0, 1] and _names(merged["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
+
+    def test_ray_engine(self, scenes: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        from test_batch import _fake_ray
+
+        calls: list[str] = []
+        monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
+        assert _cli("tonemap", scenes, tmp_path / "ray", "--engine", "ray", "--ray-address", "auto") == 0
+        assert calls.count("submit") == 3 and calls[0] == "init:auto"
+        assert _report(tmp_path / "ray", "tonemap")["engine"] == "ray"
+        assert _cli("tonemap", scenes, tmp_path / "local") == 0
+        for name in ("a.png", "b.png", "sub/c.png"):
+            assert torch.equal(read_image(tmp_path / "ray" / name), read_image(tmp_path / "local" / name))
+
+    @pytest.mark.slow
+    def test_ctrl_c_stops_cleanly_and_the_rerun_resumes(self, tmp_path: Path) -> None:
+        source = tmp_path / "in"
+        source.mkdir()
+        for i in range(150):
+            write_image(source / f"s{i:03d}.exr", _scene(i, 64, 64))
+        out = tmp_path / "out"
+        command = [sys.executable, "-m", "torch_modulo.cli", "tonemap", str(source), str(out), "--op", "clahe",
+                   "--workers", "2"]
+        process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        deadline = time.monotonic() + 120
+        while not list(out.glob("*.png")) and time.monotonic() < deadline and process.poll() is None:
+            time.sleep(0.01)
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=120)
+        assert process.returncode == 130, stderr
+        assert "Traceback" not in stderr
+        report = _report(out, "tonemap")
+        assert report["interrupted"] and report["not_finished"]
+        assert sorted(_names(report["done"]) + report["not_finished"]) == [f"s{i:03d}.exr" for i in range(150)]
+        assert sorted(p.stem for p in out.glob("*.png")) == sorted(Path(n).stem for n in _names(report["done"]))
+        assert _cli("tonemap", source, out, "--op", "clahe") == 0
+        again = _report(out, "tonemap")
+        assert _names(again["skipped"]) == _names(report["done"])
+        assert _names(again["done"]) == report["not_finished"]
+
+    def test_torchrun_two_processes_equal_one(self, scenes: Path, tmp_path: Path) -> None:
+        args = ["simulate", str(scenes), "--noise", "default", "--seed", "5", "--workers", "1", "--no-progress"]
+        assert main([args[0], args[1], str(tmp_path / "one"), *args[2:]]) == 0
+        env = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE", "LOCAL_RANK")}
+        result = subprocess.run(
+            [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+             "-m", "torch_modulo.cli", args[0], args[1], str(tmp_path / "two"), *args[2:]],
+            capture_output=True, text=True, cwd=ROOT, env=env, timeout=300,
+        )
+        assert result.returncode == 0, result.stderr[-3000:]
+        for name in ("a", "b", "sub/c"):
+            assert FileSensor(tmp_path / "one" / name).read() == FileSensor(tmp_path / "two" / name).read()
+            assert torch.equal(read_image(tmp_path / "one" / name / "radiance.exr"),
+                               read_image(tmp_path / "two" / name / "radiance.exr"))
+        merged = _report(tmp_path / "two", "simulate")
+        assert merged["world_size"] == 2 and merged["parts"] == [0, 1]
+        assert _names(merged["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
+        parts = [json.loads((tmp_path / "two" / f"simulate-report.rank{r}.json").read_text()) for r in (0, 1)]
+        assert [_names(p["done"]) for p in parts] == [["a.exr", "sub/c.exr"], ["b.hdr"]]
+
+
+    @pytest.mark.slow
+    def test_torchrun_two_nodes(self, scenes: Path, tmp_path: Path) -> None:
+        """--nnodes 2: two torchrun agents (here on one machine, static rendezvous) share the files."""
+        import socket
+
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        assert _cli("tonemap", scenes, tmp_path / "one") == 0
+        env = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE", "LOCAL_RANK")}
+        agents = [
+            subprocess.Popen(
+                [sys.executable, "-m", "torch.distributed.run", "--nnodes", "2", "--nproc_per_node", "1",
+                 "--node_rank", str(node), "--master_addr", "127.0.0.1", "--master_port", str(port),
+                 "-m", "torch_modulo.cli", "tonemap", str(scenes), str(tmp_path / "two"), "--workers", "1"],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env,
+            )
+            for node in (0, 1)
+        ]
+        outputs = [agent.communicate(timeout=300) for agent in agents]
+        assert [agent.returncode for agent in agents] == [0, 0], outputs[0][1][-2000:] + outputs[1][1][-2000:]
+        for name in ("a.png", "b.png", "sub/c.png"):
+            assert torch.equal(read_image(tmp_path / "one" / name), read_image(tmp_path / "two" / name))
+        merged = _report(tmp_path / "two", "tonemap")
+        assert merged["parts"] == [0, 1] and _names(merged["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
+
+
+# ------------------------------------------------------------------------------------------- usage and help
+
+
+BAD_OPTIONS = [
+    (["simulate", "{in}", "{out}", "--exposures", "1,-2"], "exposures must be finite and > 0"),
+    (["simulate", "{in}", "{out}", "--exposures", "1,x"], "exposure 'x' in '1,x' is not a number"),
+    (["simulate", "{in}", "{out}", "--exposures", ""], "expected comma-separated exposures"),
+    (["simulate", "{in}", "{out}", "--bits", "30"], "expected a bit depth from 1 to 24; got 30"),
+    (["simulate", "{in}", "{out}", "--bits", "20", "--format", "png"], "--format png holds at most 16 bits"),
+    (["simulate", "{in}", "{out}", "--noise", "loud=3"], "keys q, read, dark, prnu, shot; got 'loud=3'"),
+    (["simulate", "{in}", "{out}", "--noise", "read=-1"], "read_noise must be finite and >= 0; got -1.0"),
+    (["simulate", "{in}", "{out}", "--scale", "zero"], "expected 'auto' or a number > 0; got 'zero'"),
+    (["simulate", "{in}", "{out}", "--workers", "0"], "expected a number >= 1; got 0"),
+    (["tonemap", "{in}", "{out}", "--workers", "two"], "expected a whole number; got 'two'"),
+    (["tonemap", "{missing}", "{out}"], "input not found"),
+    (["tonemap", "{in}", "{in}"], "is the input folder"),
+    (["tonemap", "{in}", "{in}/sub/out"], "is inside the input folder"),
+    (["tonemap", "{in}", "{out}", "--report", "{in}/report.json"], "is inside the input folder"),
+    (["tonemap", "{in}", "{out}", "--op", "drago"], "invalid choice: 'drago'"),
+    (["tonemap", "{in}", "{out}", "--op", "reinhard", "--param", "gamma=2"], "has no parameter 'gamma'"),
+    (["tonemap", "{in}", "{out}", "--op", "reinhard", "--param", "key=-1"], "key"),
+    (["tonemap", "{in}", "{out}", "--param", "oops"], "expected NAME=VALUE"),
+    (["tonemap", "{in}", "{out}", "--engine", "spark"], "invalid choice: 'spark'"),
+    (["unwrap", "{in}", "{out}", "--exposure", "2"], "--exposure applies to --single only"),
+    (["unwrap", "{in}", "{out}", "--method", "magic"], "invalid choice: 'magic'"),
+    (["unwrap", "{in}", "{out}", "--solver", "fast"], "--solver applies to --single only"),
+    (["unwrap", "{in}", "{out}", "--single", "--solver", "magic"], "--solver must be one of"),
+    (["unwrap", "{in}"], "the following arguments are required: OUT"),
+]
+
+
+class TestUsage:
+    @pytest.mark.parametrize(("argv", "message"), BAD_OPTIONS, ids=[" ".join(a[3:] or a[:2]) for a, _ in BAD_OPTIONS])
+    def test_bad_options_are_usage_errors(self, argv: list[str], message: str, scenes: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+        paths = {"in": str(scenes), "out": str(tmp_path / "out"), "missing": str(tmp_path / "missing")}
+        with pytest.raises(SystemExit) as exit_info:
+            main([a.format(**paths) for a in argv])
+        err = capsys.readouterr().err
+        assert exit_info.value.code == 2
+        assert f"usage: torch-modulo {argv[0]}" in err and "error:" in err and message in err
+        assert "Traceback" not in err
+        assert not (tmp_path / "out").exists()  # nothing was started
+
+    def test_missing_ray_is_a_usage_error(self, scenes: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+        monkeypatch.setitem(sys.modules, "ray", None)
+        with pytest.raises(SystemExit) as exit_info:
+            main(["tonemap", str(scenes), str(tmp_path / "out"), "--engine", "ray"])
+        assert exit_info.value.code == 2
+        assert "pip install 'torch_modulo[ray]'" in capsys.readouterr().err
+
+    def test_usage_error_from_the_installed_command(self, tmp_path: Path) -> None:
+        result = subprocess.run([sys.executable, "-m", "torch_modulo", "simulate", str(tmp_path), str(tmp_path / "o"),
+                                 "--exposures", "1,0"], capture_output=True, text=True, cwd=ROOT, timeout=120)
+        assert result.returncode == 2
+        assert "exposures must be finite and > 0" in result.stderr and "Traceback" not in result.stderr
+
+    @pytest.mark.parametrize("command", ["demo", "simulate", "unwrap", "tonemap"])
+    def test_help_explains_every_option_with_an_example(self, command: str,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+        with pytest.raises(SystemExit) as exit_info:
+            main([command, "--help"])
+        assert exit_info.value.code == 0
+        text = capsys.readouterr().out
+        assert "example" in text and f"torch-modulo {command}" in text
+        sub = build_parser()._subparsers._group_actions[0].choices[command]  # type: ignore[union-attr]
+        for action in sub._actions:
+            assert action.help, f"{command}: {action.dest} has no help"
+            for option in action.option_strings:
+                assert option in text
+
+    def test_demo_options_are_unchanged(self) -> None:
+        args = build_parser().parse_args(["demo"])
+        assert (args.out, args.scene, args.bits, args.ratio, args.workers) == ("demo_out", None, 8, 64.0, None)
+        args = build_parser().parse_args(["demo", "--out", "x", "--scene", "s.exr", "--bits", "10", "--ratio", "16",
+                                          "--workers", "2"])
+        assert (args.out, args.scene, args.bits, args.ratio, args.workers) == ("x", "s.exr", 10, 16.0, 2)
