@@ -14,10 +14,7 @@ sRGB transfer function; the gamma panel is its own encoding. Scene: Greg Ward's 
 from __future__ import annotations
 
 import argparse
-import io
 import math
-import os
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -28,7 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from PIL import Image  # noqa: E402
+from _common import save_figure  # noqa: E402
 
 from torch_modulo.io import read_image  # noqa: E402
 from torch_modulo.tonemap import (  # noqa: E402
@@ -101,19 +98,7 @@ def render(hdr: torch.Tensor, title: str, out: Path, samples: int = 3000, seed: 
         ax.set_axis_off()
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    plt.close(fig)
-    buffer.seek(0)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=out.name, suffix=".tmp")
-    os.close(fd)
-    try:
-        Image.open(buffer).convert("RGB").save(tmp, format="PNG", optimize=True)
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    save_figure(fig, out)
     return timings
 
 
