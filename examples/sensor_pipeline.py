@@ -40,8 +40,7 @@ def unwrap(stack: FrameStack) -> torch.Tensor:
     """The downstream code: it does not care where the frames came from."""
     if stack.kind == "intensity":
         return merge_intensity(stack.frames, stack.exposures, stack.bits)
-    # Noise can make a dark pixel's predicted rollover count -1 (a count below zero): radiance is >= 0.
-    return unwrap_multi(stack.moduli, stack.exposures, stack.bits).clamp_min(0)
+    return unwrap_multi(stack.moduli, stack.exposures, stack.bits)
 
 
 def save(radiance: torch.Tensor, out: Path, name: str, metadata: dict) -> None:

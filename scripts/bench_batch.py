@@ -73,8 +73,12 @@ def _modulus_images(scenes: Path, folder: Path, limit: int) -> int:
 
 def _run(command: list[str]) -> tuple[float, float, dict[str, Any]]:
     start = time.perf_counter()
-    result = subprocess.run([sys.executable, "-m", "torch_modulo.cli", *command, "--force", "--no-progress"],
-                            capture_output=True, text=True, cwd=ROOT)
+    result = subprocess.run(
+        [sys.executable, "-m", "torch_modulo.cli", *command, "--force", "--no-progress"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     wall = time.perf_counter() - start
     if result.returncode not in (0, 1):
         raise RuntimeError(f"{' '.join(command)} failed ({result.returncode}):\n{result.stderr[-2000:]}")
@@ -88,11 +92,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, default=None, help="use the first N scenes only")
     parser.add_argument("--repeat", type=int, default=3, help="runs per measurement; medians are reported")
     parser.add_argument("--workers", default="1,2", help="worker counts to compare (default: %(default)s)")
-    parser.add_argument("--single-limit", type=int, default=8,
-                        help="scenes for unwrap --single, which is much slower (default: %(default)s)")
+    parser.add_argument(
+        "--single-limit",
+        type=int,
+        default=8,
+        help="scenes for unwrap --single, which is much slower (default: %(default)s)",
+    )
     parser.add_argument("--solver", default="fast", help="unwrap --single solver (default: %(default)s)")
-    parser.add_argument("--commands", default="tonemap,simulate,unwrap,single",
-                        help="which commands to time (default: %(default)s)")
+    parser.add_argument(
+        "--commands", default="tonemap,simulate,unwrap,single", help="which commands to time (default: %(default)s)"
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the summary here")
     args = parser.parse_args(argv)
     if not args.data.is_dir():
@@ -120,8 +129,12 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 n = _modulus_images(tmp_path / "scenes", tmp_path / "moduli", args.single_limit)
                 print(f"wrote {n} modulus images for unwrap --single", file=sys.stderr)
-                plans.append(("unwrap --single", ["unwrap", str(tmp_path / "moduli"), "{out}", "--single",
-                                                  "--solver", args.solver]))
+                plans.append(
+                    (
+                        "unwrap --single",
+                        ["unwrap", str(tmp_path / "moduli"), "{out}", "--single", "--solver", args.solver],
+                    )
+                )
         for label, template in plans:
             for w in workers:
                 engine, wall = [], []
@@ -157,19 +170,28 @@ def main(argv: list[str] | None = None) -> int:
                 r["speedup_vs_1"] = r["scenes_per_s"] / mine[1]["scenes_per_s"]
 
     print(f"\n{len(files)} scenes from {args.data} (medians of {args.repeat} runs; cores: {os.cpu_count()})")
-    header = f"{'command':16s} {'workers':>7s} {'scenes':>6s} {'failed':>6s} {'engine s':>9s} {'scenes/s':>9s} " \
-             f"{'speed-up':>8s} {'wall s':>7s} {'scenes/s (wall)':>15s}"
+    header = (
+        f"{'command':16s} {'workers':>7s} {'scenes':>6s} {'failed':>6s} {'engine s':>9s} {'scenes/s':>9s} "
+        f"{'speed-up':>8s} {'wall s':>7s} {'scenes/s (wall)':>15s}"
+    )
     print(header)
     print("-" * len(header))
     for r in rows:
-        print(f"{r['command']:16s} {r['workers']:7d} {r['scenes']:6d} {r['failed']:6d} {r['engine_s']:9.2f} "
-              f"{r['scenes_per_s']:9.2f} {r.get('speedup_vs_1', float('nan')):8.2f} {r['wall_s']:7.2f} "
-              f"{r['scenes_per_s_wall']:15.2f}")
+        print(
+            f"{r['command']:16s} {r['workers']:7d} {r['scenes']:6d} {r['failed']:6d} {r['engine_s']:9.2f} "
+            f"{r['scenes_per_s']:9.2f} {r.get('speedup_vs_1', float('nan')):8.2f} {r['wall_s']:7.2f} "
+            f"{r['scenes_per_s_wall']:15.2f}"
+        )
     for r in rows:
         for name, error in r.get("failures", {}).items():
             print(f"  {r['command']} (workers={r['workers']}) failed {name}: {error}")
-    summary = {"data": str(args.data), "scenes": len(files), "repeat": args.repeat, "cpu_count": os.cpu_count(),
-               "results": rows}
+    summary = {
+        "data": str(args.data),
+        "scenes": len(files),
+        "repeat": args.repeat,
+        "cpu_count": os.cpu_count(),
+        "results": rows,
+    }
     print(json.dumps(summary, indent=1))
     if args.json is not None:
         args.json.write_text(json.dumps(summary, indent=1) + "\n")

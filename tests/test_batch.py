@@ -83,8 +83,9 @@ def _run(tasks: list[Task], folder: Path, **kwargs: Any) -> BatchReport:
     kwargs.setdefault("progress", False)
     kwargs.setdefault("log", _quiet)
     options = kwargs.pop("options", {})
-    return run_batch("upper", tasks, kwargs.pop("job", upper_job), options, folder / "out",
-                     input_path=folder / "in", **kwargs)
+    return run_batch(
+        "upper", tasks, kwargs.pop("job", upper_job), options, folder / "out", input_path=folder / "in", **kwargs
+    )
 
 
 def _names(entries: list[dict[str, Any]]) -> list[str]:
@@ -164,17 +165,28 @@ class TestSharding:
             shard([1, 2], 2, 2)
 
     def test_distributed_env(self) -> None:
-        env = distributed_env({"RANK": "3", "WORLD_SIZE": "4", "LOCAL_RANK": "1", "LOCAL_WORLD_SIZE": "2",
-                               "MASTER_ADDR": "h", "MASTER_PORT": "1"})
+        env = distributed_env(
+            {
+                "RANK": "3",
+                "WORLD_SIZE": "4",
+                "LOCAL_RANK": "1",
+                "LOCAL_WORLD_SIZE": "2",
+                "MASTER_ADDR": "h",
+                "MASTER_PORT": "1",
+            }
+        )
         assert env == DistributedEnv(3, 4, 1, 2, True)
         assert distributed_env({"RANK": "1", "WORLD_SIZE": "2"}).local_world_size == 2
         assert distributed_env({}) == DistributedEnv()
 
-    @pytest.mark.parametrize(("environ", "message"), [
-        ({"RANK": "2", "WORLD_SIZE": "2"}, "RANK must lie in \\[0, WORLD_SIZE\\) = \\[0, 2\\); got 2"),
-        ({"RANK": "x", "WORLD_SIZE": "2"}, "RANK must be an integer; got 'x'"),
-        ({"WORLD_SIZE": "0"}, "WORLD_SIZE must be >= 1; got 0"),
-    ])
+    @pytest.mark.parametrize(
+        ("environ", "message"),
+        [
+            ({"RANK": "2", "WORLD_SIZE": "2"}, "RANK must lie in \\[0, WORLD_SIZE\\) = \\[0, 2\\); got 2"),
+            ({"RANK": "x", "WORLD_SIZE": "2"}, "RANK must be an integer; got 'x'"),
+            ({"WORLD_SIZE": "0"}, "WORLD_SIZE must be >= 1; got 0"),
+        ],
+    )
     def test_bad_environment(self, environ: dict[str, str], message: str) -> None:
         with pytest.raises(BatchError, match=message):
             distributed_env(environ)
@@ -280,10 +292,10 @@ class TestRunBatch:
         tasks = _make_inputs(tmp_path, names)
         _run(tasks, tmp_path)
         out, markers = tmp_path / "out", tmp_path / "out" / MARKER_FOLDER / "upper"
-        (out / "a.txt").unlink()                                           # output deleted
-        (markers / "b.txt.json").unlink()                                  # crashed before the marker
-        (markers / "c.txt.json").write_text("{not json")                   # damaged marker
-        (tmp_path / "in" / "d.txt").write_text("changed input")            # input changed
+        (out / "a.txt").unlink()  # output deleted
+        (markers / "b.txt.json").unlink()  # crashed before the marker
+        (markers / "c.txt.json").write_text("{not json")  # damaged marker
+        (tmp_path / "in" / "d.txt").write_text("changed input")  # input changed
         again = _run(tasks, tmp_path)
         assert _names(again.done) == ["a.txt", "b.txt", "c.txt", "d.txt"]
         assert _names(again.skipped) == ["e.txt", "f.txt"]
@@ -322,8 +334,11 @@ class TestRunBatch:
 
     def test_outputs_inside_the_input_are_refused(self, tmp_path: Path) -> None:
         tasks = _make_inputs(tmp_path, {"a.txt": "alpha", "b.txt": "beta"})
-        inside = [tasks[0], Task("b.txt", tasks[1].source, (str(tmp_path / "in" / "B.txt"),)),
-                  Task("a2", tasks[0].source, (tasks[0].source,))]
+        inside = [
+            tasks[0],
+            Task("b.txt", tasks[1].source, (str(tmp_path / "in" / "B.txt"),)),
+            Task("a2", tasks[0].source, (tasks[0].source,)),
+        ]
         report = _run(inside, tmp_path)
         assert _names(report.done) == ["a.txt"]
         assert all("inputs are never written" in e["error"] for e in report.failed)
@@ -386,8 +401,9 @@ class TestRunBatch:
         with pytest.raises(ValueError, match="Task 'x' must have at least one output"):
             Task("x", "a", ())
 
-    def test_progress_bar_only_when_asked_or_on_a_terminal(self, tmp_path: Path,
-                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    def test_progress_bar_only_when_asked_or_on_a_terminal(
+        self, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    ) -> None:
         tasks = _make_inputs(tmp_path, {"a.txt": "alpha", "b.txt": "beta"})
         _run(tasks, tmp_path, progress=None, force=True)  # stderr is not a terminal under pytest: quiet
         assert "upper" not in capsys.readouterr().err

@@ -100,8 +100,9 @@ class TestSimulate:
             for m, tau in enumerate(TAUS):
                 assert torch.equal(stack.moduli[0, m], capture_modulo(truth, tau, bits=8))
             assert stack.metadata["source"] == name
-            assert stack.metadata["radiance_scale"] == pytest.approx(255.0 / float(
-                read_image(scenes / name, dtype=torch.float64).clamp_min(0).max()))
+            assert stack.metadata["radiance_scale"] == pytest.approx(
+                255.0 / float(read_image(scenes / name, dtype=torch.float64).clamp_min(0).max())
+            )
             meta = read_metadata(folder / "frame_b000_m02.exr")
             assert meta["bits"] == 8 and meta["exposure"] == 65536.0
         assert _names(report["done"])[2] == "sub/c.exr" and report["done"][2]["negatives_clamped"] == 1
@@ -110,8 +111,9 @@ class TestSimulate:
         runs = {}
         for label, workers, seed in (("w1", 1, 3), ("w2", 2, 3), ("seed4", 1, 4)):
             out = tmp_path / label
-            assert _cli("simulate", scenes, out, "--noise", "read=2,prnu=0.01", "--seed", seed,
-                        "--workers", workers) == 0
+            assert (
+                _cli("simulate", scenes, out, "--noise", "read=2,prnu=0.01", "--seed", seed, "--workers", workers) == 0
+            )
             runs[label] = {s: FileSensor(out / s).read() for s in ("a", "b", "sub/c")}
         assert all(runs["w1"][s] == runs["w2"][s] for s in runs["w1"])
         assert all(not torch.equal(runs["w1"][s].moduli, runs["seed4"][s].moduli) for s in runs["w1"])
@@ -121,10 +123,28 @@ class TestSimulate:
 
     def test_png_frames_without_truth(self, scenes: Path, tmp_path: Path) -> None:
         out = tmp_path / "png"
-        assert _cli("simulate", scenes / "a.exr", out, "--bits", 10, "--exposures", "1,32", "--format", "png",
-                    "--no-truth", "--scale", 2.5) == 0
-        assert sorted(p.name for p in (out / "a").iterdir()) == ["frame_b000_m00.png", "frame_b000_m01.png",
-                                                                 "frames.json"]
+        assert (
+            _cli(
+                "simulate",
+                scenes / "a.exr",
+                out,
+                "--bits",
+                10,
+                "--exposures",
+                "1,32",
+                "--format",
+                "png",
+                "--no-truth",
+                "--scale",
+                2.5,
+            )
+            == 0
+        )
+        assert sorted(p.name for p in (out / "a").iterdir()) == [
+            "frame_b000_m00.png",
+            "frame_b000_m01.png",
+            "frames.json",
+        ]
         stack = FileSensor(out / "a", dtype=torch.float64).read()
         x = read_image(scenes / "a.exr", dtype=torch.float64).clamp_min(0) * 2.5
         assert stack.bits == 10
@@ -206,8 +226,12 @@ class TestUnwrap:
         assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--solver", "fast", "--bits", 8) == 0
         assert _names(_report(tmp_path / "out", "unwrap")["done"]) == ["nobits.png", "ramp.png"]
         # the number of workers is not: the next rerun skips both
-        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--solver", "fast", "--bits", 8,
-                    "--workers", 1) == 0
+        assert (
+            _cli(
+                "unwrap", tmp_path / "in", tmp_path / "out", "--single", "--solver", "fast", "--bits", 8, "--workers", 1
+            )
+            == 0
+        )
         assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["nobits.png", "ramp.png"]
 
 
@@ -227,8 +251,10 @@ class TestTonemap:
 
     def test_operator_and_parameters(self, scenes: Path, tmp_path: Path) -> None:
         out = tmp_path / "png"
-        assert _cli("tonemap", scenes / "a.exr", out, "--op", "reinhard", "--param", "key=0.36", "--srgb",
-                    "--depth", 16) == 0
+        assert (
+            _cli("tonemap", scenes / "a.exr", out, "--op", "reinhard", "--param", "key=0.36", "--srgb", "--depth", 16)
+            == 0
+        )
         png, meta = read_image(out / "a.png", with_metadata=True)
         expected = torch.round(tonemap_reinhard(read_image(scenes / "a.exr"), key=0.36, srgb=True) * 65535)
         assert torch.equal(png, expected)
@@ -318,8 +344,18 @@ class TestFolderPromises:
         for i in range(150):
             write_image(source / f"s{i:03d}.exr", _scene(i, 64, 64))
         out = tmp_path / "out"
-        command = [sys.executable, "-m", "torch_modulo.cli", "tonemap", str(source), str(out), "--op", "clahe",
-                   "--workers", "2"]
+        command = [
+            sys.executable,
+            "-m",
+            "torch_modulo.cli",
+            "tonemap",
+            str(source),
+            str(out),
+            "--op",
+            "clahe",
+            "--workers",
+            "2",
+        ]
         process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=ROOT)
         deadline = time.monotonic() + 120
         while not list(out.glob("*.png")) and time.monotonic() < deadline and process.poll() is None:
@@ -342,21 +378,38 @@ class TestFolderPromises:
         assert main([args[0], args[1], str(tmp_path / "one"), *args[2:]]) == 0
         env = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE", "LOCAL_RANK")}
         result = subprocess.run(
-            [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-             "-m", "torch_modulo.cli", args[0], args[1], str(tmp_path / "two"), *args[2:]],
-            capture_output=True, text=True, cwd=ROOT, env=env, timeout=300,
+            [
+                sys.executable,
+                "-m",
+                "torch.distributed.run",
+                "--standalone",
+                "--nproc_per_node",
+                "2",
+                "-m",
+                "torch_modulo.cli",
+                args[0],
+                args[1],
+                str(tmp_path / "two"),
+                *args[2:],
+            ],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            env=env,
+            timeout=300,
         )
         assert result.returncode == 0, result.stderr[-3000:]
         for name in ("a", "b", "sub/c"):
             assert FileSensor(tmp_path / "one" / name).read() == FileSensor(tmp_path / "two" / name).read()
-            assert torch.equal(read_image(tmp_path / "one" / name / "radiance.exr"),
-                               read_image(tmp_path / "two" / name / "radiance.exr"))
+            assert torch.equal(
+                read_image(tmp_path / "one" / name / "radiance.exr"),
+                read_image(tmp_path / "two" / name / "radiance.exr"),
+            )
         merged = _report(tmp_path / "two", "simulate")
         assert merged["world_size"] == 2 and merged["parts"] == [0, 1]
         assert _names(merged["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
         parts = [json.loads((tmp_path / "two" / f"simulate-report.rank{r}.json").read_text()) for r in (0, 1)]
         assert [_names(p["done"]) for p in parts] == [["a.exr", "sub/c.exr"], ["b.hdr"]]
-
 
     @pytest.mark.slow
     def test_torchrun_two_nodes(self, scenes: Path, tmp_path: Path) -> None:
@@ -370,10 +423,33 @@ class TestFolderPromises:
         env = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE", "LOCAL_RANK")}
         agents = [
             subprocess.Popen(
-                [sys.executable, "-m", "torch.distributed.run", "--nnodes", "2", "--nproc_per_node", "1",
-                 "--node_rank", str(node), "--master_addr", "127.0.0.1", "--master_port", str(port),
-                 "-m", "torch_modulo.cli", "tonemap", str(scenes), str(tmp_path / "two"), "--workers", "1"],
-                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env,
+                [
+                    sys.executable,
+                    "-m",
+                    "torch.distributed.run",
+                    "--nnodes",
+                    "2",
+                    "--nproc_per_node",
+                    "1",
+                    "--node_rank",
+                    str(node),
+                    "--master_addr",
+                    "127.0.0.1",
+                    "--master_port",
+                    str(port),
+                    "-m",
+                    "torch_modulo.cli",
+                    "tonemap",
+                    str(scenes),
+                    str(tmp_path / "two"),
+                    "--workers",
+                    "1",
+                ],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                cwd=ROOT,
+                env=env,
             )
             for node in (0, 1)
         ]
@@ -418,8 +494,9 @@ BAD_OPTIONS = [
 
 class TestUsage:
     @pytest.mark.parametrize(("argv", "message"), BAD_OPTIONS, ids=[" ".join(a[3:] or a[:2]) for a, _ in BAD_OPTIONS])
-    def test_bad_options_are_usage_errors(self, argv: list[str], message: str, scenes: Path, tmp_path: Path,
-                                          capsys: pytest.CaptureFixture[str]) -> None:
+    def test_bad_options_are_usage_errors(
+        self, argv: list[str], message: str, scenes: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    ) -> None:
         paths = {"in": str(scenes), "out": str(tmp_path / "out"), "missing": str(tmp_path / "missing")}
         with pytest.raises(SystemExit) as exit_info:
             main([a.format(**paths) for a in argv])
@@ -429,8 +506,9 @@ class TestUsage:
         assert "Traceback" not in err
         assert not (tmp_path / "out").exists()  # nothing was started
 
-    def test_missing_ray_is_a_usage_error(self, scenes: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                          capsys: pytest.CaptureFixture[str]) -> None:
+    def test_missing_ray_is_a_usage_error(
+        self, scenes: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    ) -> None:
         monkeypatch.setitem(sys.modules, "ray", None)
         with pytest.raises(SystemExit) as exit_info:
             main(["tonemap", str(scenes), str(tmp_path / "out"), "--engine", "ray"])
@@ -438,14 +516,27 @@ class TestUsage:
         assert "pip install 'torch_modulo[ray]'" in capsys.readouterr().err
 
     def test_usage_error_from_the_installed_command(self, tmp_path: Path) -> None:
-        result = subprocess.run([sys.executable, "-m", "torch_modulo", "simulate", str(tmp_path), str(tmp_path / "o"),
-                                 "--exposures", "1,0"], capture_output=True, text=True, cwd=ROOT, timeout=120)
+        result = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "torch_modulo",
+                "simulate",
+                str(tmp_path),
+                str(tmp_path / "o"),
+                "--exposures",
+                "1,0",
+            ],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=120,
+        )
         assert result.returncode == 2
         assert "exposures must be finite and > 0" in result.stderr and "Traceback" not in result.stderr
 
     @pytest.mark.parametrize("command", ["demo", "simulate", "unwrap", "tonemap"])
-    def test_help_explains_every_option_with_an_example(self, command: str,
-                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    def test_help_explains_every_option_with_an_example(self, command: str, capsys: pytest.CaptureFixture[str]) -> None:
         with pytest.raises(SystemExit) as exit_info:
             main([command, "--help"])
         assert exit_info.value.code == 0
@@ -460,6 +551,7 @@ class TestUsage:
     def test_demo_options_are_unchanged(self) -> None:
         args = build_parser().parse_args(["demo"])
         assert (args.out, args.scene, args.bits, args.ratio, args.workers) == ("demo_out", None, 8, 64.0, None)
-        args = build_parser().parse_args(["demo", "--out", "x", "--scene", "s.exr", "--bits", "10", "--ratio", "16",
-                                          "--workers", "2"])
+        args = build_parser().parse_args(
+            ["demo", "--out", "x", "--scene", "s.exr", "--bits", "10", "--ratio", "16", "--workers", "2"]
+        )
         assert (args.out, args.scene, args.bits, args.ratio, args.workers) == ("x", "s.exr", 10, 16.0, 2)

@@ -38,6 +38,16 @@ from torch_modulo.multishot import (
     plan_exposures,
     unwrap_multi,
 )
+from torch_modulo.singleshot import (
+    Potential,
+    SingleShotInfo,
+    SingleShotUnwrap,
+    UnwrapEnergy,
+    is_representable,
+    potential,
+    unwrap_energy,
+    unwrap_single,
+)
 from torch_modulo.tonemap import (
     ClaheToneMap,
     GammaToneMap,
@@ -54,6 +64,14 @@ from torch_modulo.tonemap import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "Potential",
+    "UnwrapEnergy",
+    "is_representable",
+    "potential",
+    "unwrap_energy",
+    "SingleShotInfo",
+    "SingleShotUnwrap",
+    "unwrap_single",
     "ClaheToneMap",
     "GammaToneMap",
     "HistogramToneMap",

@@ -577,8 +577,14 @@ _Callback = Callable[[Task, dict[str, Any]], None]
 _POLL_S = 0.2
 
 
-def _run_inline(tasks: Sequence[Task], job: JobFunction, options: Mapping[str, Any], threads: int | None,
-                on_result: _Callback, stop: _Stop) -> None:
+def _run_inline(
+    tasks: Sequence[Task],
+    job: JobFunction,
+    options: Mapping[str, Any],
+    threads: int | None,
+    on_result: _Callback,
+    stop: _Stop,
+) -> None:
     """Run in this process, one task after the other, until done or asked to stop."""
     for task in tasks:
         if stop.requested:
@@ -598,9 +604,17 @@ def _pool_context(preload: Sequence[str]) -> multiprocessing.context.BaseContext
     return ctx
 
 
-def _run_pool(tasks: Sequence[Task], job: JobFunction, options: Mapping[str, Any], workers: int,
-              threads: int | None, on_result: _Callback, log: Callable[[str], None], preload: Sequence[str],
-              stop: _Stop) -> None:
+def _run_pool(
+    tasks: Sequence[Task],
+    job: JobFunction,
+    options: Mapping[str, Any],
+    workers: int,
+    threads: int | None,
+    on_result: _Callback,
+    log: Callable[[str], None],
+    preload: Sequence[str],
+    stop: _Stop,
+) -> None:
     queue = list(tasks)
     queue.reverse()
     running: dict[Future[dict[str, Any]], Task] = {}
@@ -647,8 +661,16 @@ def require_ray() -> Any:
     return ray
 
 
-def _run_ray(tasks: Sequence[Task], job: JobFunction, options: Mapping[str, Any], workers: int | None,
-             threads: int | None, on_result: _Callback, address: str | None, stop: _Stop) -> int:
+def _run_ray(
+    tasks: Sequence[Task],
+    job: JobFunction,
+    options: Mapping[str, Any],
+    workers: int | None,
+    threads: int | None,
+    on_result: _Callback,
+    address: str | None,
+    stop: _Stop,
+) -> int:
     ray = require_ray()
     started_here = False
     if not ray.is_initialized():
@@ -828,8 +850,10 @@ def run_batch(
     source_root = Path(input_path).resolve() if input_path is not None else None
     env = distributed_env(environ)
     if engine == "ray" and env.world_size > 1:
-        raise BatchError("--engine ray runs one driver that spreads the tasks over the Ray cluster: do not combine it "
-                         f"with torchrun (WORLD_SIZE={env.world_size})")
+        raise BatchError(
+            "--engine ray runs one driver that spreads the tasks over the Ray cluster: do not combine it "
+            f"with torchrun (WORLD_SIZE={env.world_size})"
+        )
     if engine == "ray":
         require_ray()  # fail before doing anything when Ray is missing
     report_file = Path(report_path).resolve() if report_path is not None else out / f"{command}-report.json"
@@ -844,12 +868,21 @@ def run_batch(
         if group.active:
             tasks = group.broadcast(list(tasks))
         mine = shard(list(tasks), env.rank, env.world_size)
-        n_workers = workers if workers is not None else (default_workers(env.local_world_size) if engine == "process"
-                                                         else None)
-        report = BatchReport(command, str(source_root) if source_root else "", str(out), options, engine,
-                             n_workers or 0, env.rank, env.world_size, total=len(mine))
-        run_key = _fingerprint(command, {"options": options, "tasks": [t.name for t in tasks],
-                                         "world": env.world_size})
+        n_workers = (
+            workers if workers is not None else (default_workers(env.local_world_size) if engine == "process" else None)
+        )
+        report = BatchReport(
+            command,
+            str(source_root) if source_root else "",
+            str(out),
+            options,
+            engine,
+            n_workers or 0,
+            env.rank,
+            env.world_size,
+            total=len(mine),
+        )
+        run_key = _fingerprint(command, {"options": options, "tasks": [t.name for t in tasks], "world": env.world_size})
         start = time.perf_counter()
 
         # Plan: refuse outputs inside the input, outputs claimed twice; skip what is complete.
@@ -874,8 +907,13 @@ def run_batch(
             if problem:
                 report.failed.append({"input": task.name, "outputs": rel, "error": f"BatchError: {problem}"})
             elif not force and _is_complete(task, _marker_path(out, command, task.name), fingerprint, rel):
-                report.skipped.append({"input": task.name, "outputs": rel,
-                                       "reason": "complete: outputs exist and match the options and the input"})
+                report.skipped.append(
+                    {
+                        "input": task.name,
+                        "outputs": rel,
+                        "reason": "complete: outputs exist and match the options and the input",
+                    }
+                )
             else:
                 todo.append(task)
         # The input's state as the job will see it: a change during the job makes the next run redo it.
@@ -888,8 +926,9 @@ def run_batch(
         bar = _progress_bar(command, len(mine), len(mine) - len(todo), show)
         if n_workers is not None:
             n_workers = min(n_workers, max(1, len(todo)))
-        threads = 1 if (n_workers or 2) > 1 else (default_workers(env.local_world_size) if env.local_world_size > 1
-                                                  else None)
+        threads = (
+            1 if (n_workers or 2) > 1 else (default_workers(env.local_world_size) if env.local_world_size > 1 else None)
+        )
 
         def on_result(task: Task, result: dict[str, Any]) -> None:
             record(task, result)
@@ -898,12 +937,26 @@ def run_batch(
         def record(task: Task, result: dict[str, Any]) -> None:
             rel = [_relative(p, out) for p in task.outputs]
             if result["ok"]:
-                write_json(_marker_path(out, command, task.name), {
-                    "command": command, "input": task.name, "fingerprint": fingerprint, "options": options,
-                    "source_state": states.get(task.name), "outputs": rel, "finished": _now(),
-                })
-                report.done.append({"input": task.name, "outputs": rel, "seconds": round(result["seconds"], 4),
-                                    **result.get("info", {})})
+                write_json(
+                    _marker_path(out, command, task.name),
+                    {
+                        "command": command,
+                        "input": task.name,
+                        "fingerprint": fingerprint,
+                        "options": options,
+                        "source_state": states.get(task.name),
+                        "outputs": rel,
+                        "finished": _now(),
+                    },
+                )
+                report.done.append(
+                    {
+                        "input": task.name,
+                        "outputs": rel,
+                        "seconds": round(result["seconds"], 4),
+                        **result.get("info", {}),
+                    }
+                )
             if not result["ok"]:
                 report.failed.append({"input": task.name, "outputs": rel, "error": result["error"]})
                 log(f"{command}: failed {task.name}: {result['error']}")
@@ -980,8 +1033,15 @@ def _progress_bar(command: str, total: int, initial: int, show: bool | None) -> 
     except ImportError:
         return _NoBar()
     # disable=None: tqdm turns itself off when stderr is not a terminal (logs, CI, pipes).
-    return tqdm(total=total, initial=initial, desc=command, unit="file", disable=None if show is None else not show,
-                dynamic_ncols=True, file=sys.stderr)
+    return tqdm(
+        total=total,
+        initial=initial,
+        desc=command,
+        unit="file",
+        disable=None if show is None else not show,
+        dynamic_ncols=True,
+        file=sys.stderr,
+    )
 
 
 def _check_picklable(job: JobFunction, task: Task, options: Mapping[str, Any]) -> None:
@@ -992,4 +1052,3 @@ def _check_picklable(job: JobFunction, task: Task, options: Mapping[str, Any]) -
             f"the job {getattr(job, '__qualname__', job)!r} cannot be sent to worker processes ({error}); define it "
             "at module level"
         ) from error
-

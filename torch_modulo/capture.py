@@ -47,7 +47,7 @@ def _needs_grad(*tensors: torch.Tensor) -> bool:
 
 #: Elements per tile for the in-place CPU kernels: small enough that a tile and its scratch stay in cache, so
 #: the data crosses main memory once (allocating and faulting in full-size temporaries costs more than the math).
-CPU_TILE = 1 << 17
+CPU_TILE = 1 << 19
 
 
 def _column_tiles(n: int, rows: int) -> list[slice]:

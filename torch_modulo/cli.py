@@ -232,21 +232,35 @@ def _add_folder_options(sub: argparse.ArgumentParser, what_in: str, what_out: st
     sub.add_argument("output", metavar="OUT", help=what_out)
     group = sub.add_argument_group("batch options (every folder command)")
     group.add_argument(
-        "--workers", type=_positive_int, default=None, metavar="N",
+        "--workers",
+        type=_positive_int,
+        default=None,
+        metavar="N",
         help="worker processes (default: the machine's cores, shared among the torchrun ranks on one machine; "
-             "with --engine ray: tasks in flight, default the cluster's CPUs)",
+        "with --engine ray: tasks in flight, default the cluster's CPUs)",
     )
     group.add_argument(
-        "--engine", choices=("process", "ray"), default="process",
+        "--engine",
+        choices=("process", "ray"),
+        default="process",
         help="process: a local process pool (default); ray: tasks on a Ray cluster (needs torch_modulo[ray])",
     )
-    group.add_argument("--ray-address", default=None, metavar="ADDR",
-                       help="Ray cluster to join, e.g. auto or ray://host:10001 (default: RAY_ADDRESS or local Ray)")
+    group.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="Ray cluster to join, e.g. auto or ray://host:10001 (default: RAY_ADDRESS or local Ray)",
+    )
     group.add_argument("--force", action="store_true", help="redo inputs whose outputs are already complete")
-    group.add_argument("--report", default=None, metavar="FILE",
-                       help="where the JSON report goes (default: OUT/<command>-report.json)")
-    group.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                       help="show a progress bar (default: only when stderr is a terminal)")
+    group.add_argument(
+        "--report", default=None, metavar="FILE", help="where the JSON report goes (default: OUT/<command>-report.json)"
+    )
+    group.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="show a progress bar (default: only when stderr is a terminal)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -288,32 +302,53 @@ def build_parser() -> argparse.ArgumentParser:
             "were captured from (counts per unit exposure), the ground truth for training and scoring."
         ),
         epilog="example:\n  torch-modulo simulate hdr_scenes/ stacks/ --bits 8 --exposures 1,256,65536 "
-               "--noise read=2 --seed 1\n" + _FOLDER_EPILOG.format(command="simulate"),
+        "--noise read=2 --seed 1\n" + _FOLDER_EPILOG.format(command="simulate"),
     )
     _add_folder_options(simulate, "folder of HDR radiance files (or one file)", "folder for the frame stacks")
     simulate.add_argument("--bits", type=_bits, default=8, help="sensor bit depth N, 1 to 24 (default: 8)")
     simulate.add_argument(
-        "--exposures", type=_exposures, default=[1.0, 256.0, 65536.0], metavar="T1,T2,...",
+        "--exposures",
+        type=_exposures,
+        default=[1.0, 256.0, 65536.0],
+        metavar="T1,T2,...",
         help="exposures, comma-separated (default: 1,256,65536); neighbouring ratios up to 2^bits can be unwrapped",
     )
     simulate.add_argument(
-        "--noise", type=_noise, default=None, metavar="MODEL",
+        "--noise",
+        type=_noise,
+        default=None,
+        metavar="MODEL",
         help="none (default: Eq. 1 exactly), default (shot noise, 1 e- read noise) or KEY=VALUE pairs: "
-             "q=electrons per count, read=read noise (e- rms), dark=dark current (e- per unit exposure), "
-             "prnu=fixed-pattern gain spread, shot=on|off; e.g. read=2,prnu=0.01",
+        "q=electrons per count, read=read noise (e- rms), dark=dark current (e- per unit exposure), "
+        "prnu=fixed-pattern gain spread, shot=on|off; e.g. read=2,prnu=0.01",
     )
-    simulate.add_argument("--seed", type=_nonnegative_int, default=0,
-                          help="noise seed; each scene draws from a seed derived from it and its file name, so "
-                               "results do not depend on workers or ranks (default: 0)")
     simulate.add_argument(
-        "--scale", type=_scale, default="auto", metavar="auto|S",
-        help="radiance multiplier into counts per unit exposure; auto (default) makes the brightest value read "
-             "2^bits - 1 at the shortest exposure, so that frame does not roll over",
+        "--seed",
+        type=_nonnegative_int,
+        default=0,
+        help="noise seed; each scene draws from a seed derived from it and its file name, so "
+        "results do not depend on workers or ranks (default: 0)",
     )
-    simulate.add_argument("--format", choices=("exr", "png", "tiff"), default="exr",
-                          help="frame files: exr (default; half floats up to 11 bits), png or tiff (up to 16 bits)")
-    simulate.add_argument("--truth", action=argparse.BooleanOptionalAction, default=True,
-                          help="also write radiance.exr, the scaled ground truth (default: on)")
+    simulate.add_argument(
+        "--scale",
+        type=_scale,
+        default="auto",
+        metavar="auto|S",
+        help="radiance multiplier into counts per unit exposure; auto (default) makes the brightest value read "
+        "2^bits - 1 at the shortest exposure, so that frame does not roll over",
+    )
+    simulate.add_argument(
+        "--format",
+        choices=("exr", "png", "tiff"),
+        default="exr",
+        help="frame files: exr (default; half floats up to 11 bits), png or tiff (up to 16 bits)",
+    )
+    simulate.add_argument(
+        "--truth",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also write radiance.exr, the scaled ground truth (default: on)",
+    )
 
     unwrap = commands.add_parser(
         "unwrap",
@@ -329,22 +364,37 @@ def build_parser() -> argparse.ArgumentParser:
             "radiance in counts per unit exposure; the metadata records the source, bit depth and exposures."
         ),
         epilog="examples:\n  torch-modulo unwrap stacks/ radiance/\n"
-               "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8\n"
-               + _FOLDER_EPILOG.format(command="unwrap"),
+        "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8\n" + _FOLDER_EPILOG.format(command="unwrap"),
     )
     _add_folder_options(unwrap, "folder of frame stacks, or of modulus images with --single", "folder for the EXRs")
-    unwrap.add_argument("--single", action="store_true",
-                        help="IN holds single modulus images: unwrap each one alone (graph cuts)")
-    unwrap.add_argument("--bits", type=_bits, default=None,
-                        help="sensor bit depth (default: from each file's metadata, manifest or sidecar)")
-    unwrap.add_argument("--exposure", type=_positive_float, default=None,
-                        help="with --single: the frames' exposure (default: from the metadata, else 1)")
-    unwrap.add_argument("--solver", default=None, metavar="METHOD",
-                        help="with --single: the graph-cut method of unwrap_single, paper (Eqs. 3-5 from k = 0, slow) "
-                             "or fast (same energy, cheaper schedule) (default: unwrap_single's default)")
-    unwrap.add_argument("--method", choices=("robust", "paper"), default="robust",
-                        help="multi-shot rule: robust (default; exact for every ratio up to 2^bits) or paper "
-                             "(Eq. 6 as printed)")
+    unwrap.add_argument(
+        "--single", action="store_true", help="IN holds single modulus images: unwrap each one alone (graph cuts)"
+    )
+    unwrap.add_argument(
+        "--bits",
+        type=_bits,
+        default=None,
+        help="sensor bit depth (default: from each file's metadata, manifest or sidecar)",
+    )
+    unwrap.add_argument(
+        "--exposure",
+        type=_positive_float,
+        default=None,
+        help="with --single: the frames' exposure (default: from the metadata, else 1)",
+    )
+    unwrap.add_argument(
+        "--solver",
+        default=None,
+        metavar="METHOD",
+        help="with --single: the graph-cut method of unwrap_single, paper (Eqs. 3-5 from k = 0, slow) "
+        "or fast (same energy, cheaper schedule) (default: unwrap_single's default)",
+    )
+    unwrap.add_argument(
+        "--method",
+        choices=("robust", "paper"),
+        default="robust",
+        help="multi-shot rule: robust (default; exact for every ratio up to 2^bits) or paper (Eq. 6 as printed)",
+    )
 
     tonemap = commands.add_parser(
         "tonemap",
@@ -357,16 +407,21 @@ def build_parser() -> argparse.ArgumentParser:
             "layers) the first three are taken as RGB."
         ),
         epilog="examples:\n  torch-modulo tonemap radiance/ png/ --op histogram --srgb\n"
-               "  torch-modulo tonemap radiance/ png/ --op reinhard --param key=0.36 --depth 16\n"
-               + _FOLDER_EPILOG.format(command="tonemap"),
+        "  torch-modulo tonemap radiance/ png/ --op reinhard --param key=0.36 --depth 16\n"
+        + _FOLDER_EPILOG.format(command="tonemap"),
     )
     _add_folder_options(tonemap, "folder of radiance files (or one file)", "folder for the PNGs")
-    tonemap.add_argument("--op", choices=TONEMAP_OPS, default="histogram",
-                         help="tone-mapping operator (default: histogram)")
     tonemap.add_argument(
-        "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
+        "--op", choices=TONEMAP_OPS, default="histogram", help="tone-mapping operator (default: histogram)"
+    )
+    tonemap.add_argument(
+        "--param",
+        type=_param,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
         help="an operator parameter, repeatable, e.g. key=0.36 (reinhard), gamma=2.4 exposure=1 (gamma), "
-             "clip_limit=3 grid_size=8,8 (clahe), ld_max=200 (histogram); see torch_modulo.tonemap",
+        "clip_limit=3 grid_size=8,8 (clahe), ld_max=200 (histogram); see torch_modulo.tonemap",
     )
     tonemap.add_argument("--srgb", action="store_true", help="apply the sRGB transfer function to the result")
     tonemap.add_argument("--depth", type=int, choices=(8, 16), default=8, help="PNG bits per sample (default: 8)")
@@ -440,8 +495,11 @@ def simulate_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
     with atomic_output_dir(task.outputs[0]) as folder:
         write_frames(stack, folder, format=options["format"])
         if options["truth"]:
-            write_image(folder / "radiance.exr", radiance.float(), {"source": task.name, "radiance_scale": scale,
-                                                                     "unit": "counts per unit exposure"})
+            write_image(
+                folder / "radiance.exr",
+                radiance.float(),
+                {"source": task.name, "radiance_scale": scale, "unit": "counts per unit exposure"},
+            )
     return {"shape": list(image.shape), "radiance_scale": scale, "negatives_clamped": negatives}
 
 
@@ -463,8 +521,14 @@ def unwrap_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
         solver = {"method": options["solver"]} if options["solver"] is not None else {}
         counts = unwrap_single(image.unsqueeze(0), int(bits), workers=options["_solver_workers"], **solver)[0]
         radiance = counts.double() / float(exposure)
-        metadata = {"source": task.name, "bits": int(bits), "exposure": float(exposure), "method": "single",
-                    "solver": options["solver"] or "default", "unit": "counts per unit exposure"}
+        metadata = {
+            "source": task.name,
+            "bits": int(bits),
+            "exposure": float(exposure),
+            "method": "single",
+            "solver": options["solver"] or "default",
+            "unit": "counts per unit exposure",
+        }
     else:
         from torch_modulo.multishot import merge_intensity, unwrap_multi
         from torch_modulo.sensors import FileSensor
@@ -480,8 +544,14 @@ def unwrap_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
         else:
             radiance = unwrap_multi(stack.moduli, stack.exposures, stack.bits, options["method"])[0]
             method = options["method"]
-        metadata = {"source": task.name, "bits": stack.bits, "exposures": stack.exposure_matrix()[0].tolist(),
-                    "method": method, "kind": stack.kind, "unit": "counts per unit exposure"}
+        metadata = {
+            "source": task.name,
+            "bits": stack.bits,
+            "exposures": stack.exposure_matrix()[0].tolist(),
+            "method": method,
+            "kind": stack.kind,
+            "unit": "counts per unit exposure",
+        }
         if "radiance_scale" in stack.metadata:
             metadata["radiance_scale"] = stack.metadata["radiance_scale"]
     write_image(task.outputs[0], radiance.float(), metadata)
@@ -554,10 +624,20 @@ def _options(args: argparse.Namespace, sub: argparse.ArgumentParser, workers: in
         too_far = [(a, b) for a, b in zip(taus, taus[1:], strict=False) if b / a > 2**args.bits]
         if too_far:
             a, b = too_far[0]
-            print(f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
-                  "`torch-modulo unwrap` cannot count the rollovers between them", file=sys.stderr)
-        return {"bits": args.bits, "exposures": args.exposures, "noise": args.noise, "seed": args.seed,
-                "scale": args.scale, "format": args.format, "truth": args.truth}
+            print(
+                f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
+                "`torch-modulo unwrap` cannot count the rollovers between them",
+                file=sys.stderr,
+            )
+        return {
+            "bits": args.bits,
+            "exposures": args.exposures,
+            "noise": args.noise,
+            "seed": args.seed,
+            "scale": args.scale,
+            "format": args.format,
+            "truth": args.truth,
+        }
     if args.command == "unwrap":
         if args.exposure is not None and not args.single:
             sub.error("--exposure applies to --single only (frame stacks carry their exposures)")
@@ -569,8 +649,14 @@ def _options(args: argparse.Namespace, sub: argparse.ArgumentParser, workers: in
 
             if args.solver not in METHODS:
                 sub.error(f"--solver must be one of {', '.join(sorted(METHODS))}; got {args.solver!r}")
-        return {"single": args.single, "bits": args.bits, "exposure": args.exposure, "method": args.method,
-                "solver": args.solver, "_solver_workers": None if workers == 1 else 1}
+        return {
+            "single": args.single,
+            "bits": args.bits,
+            "exposure": args.exposure,
+            "method": args.method,
+            "solver": args.solver,
+            "_solver_workers": None if workers == 1 else 1,
+        }
     params = dict(args.param)
     from torch_modulo import tonemap
 
@@ -619,8 +705,18 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
     job = getattr(importlib.import_module("torch_modulo.cli"), f"{args.command}_job")
     try:
         report = run_batch(
-            args.command, tasks, job, options, out, input_path=source, workers=args.workers, engine=args.engine,
-            force=args.force, progress=args.progress, report_path=args.report, ray_address=args.ray_address,
+            args.command,
+            tasks,
+            job,
+            options,
+            out,
+            input_path=source,
+            workers=args.workers,
+            engine=args.engine,
+            force=args.force,
+            progress=args.progress,
+            report_path=args.report,
+            ray_address=args.ray_address,
             preload=_PRELOAD[args.command] + (("torch_modulo.singleshot",) if getattr(args, "single", False) else ()),
         )
     except BatchError as error:

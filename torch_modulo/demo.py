@@ -7,8 +7,8 @@
 2. Single shot: unwrap the one modulus image by graph cuts (Eqs. 3-5).
 3. Multi shot: three modulo captures (neighbouring ratio 64, the shortest without rollover), unwrapped by rollover
    counting (Eqs. 6-7), against the conventional merge of three clipped intensity captures with the same exposures.
-4. Tone-map everything with Larson et al.'s histogram adjustment (sRGB-encoded) and write EXRs, PNGs, one labelled comparison image
-   and ``summary.json``.
+4. Tone-map everything with Larson et al.'s histogram adjustment (sRGB-encoded) and write EXRs, PNGs, one
+   labelled comparison image and ``summary.json``.
 """
 
 from __future__ import annotations

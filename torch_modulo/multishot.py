@@ -47,7 +47,7 @@ _METHODS = ("robust", "paper")
 _WEIGHTS = ("binary", "hat")
 
 #: Elements per CPU tile (all batch items together): the float64 working set stays in the L2/L3 caches.
-_CPU_TILE = 1 << 17
+_CPU_TILE = 1 << 19
 
 
 def _tiles(n: int, tile: int) -> Iterator[slice]:

@@ -1,0 +1,227 @@
+"""Tests for unwrap_single / SingleShotUnwrap: single-shot recovery (paper Sec. 4)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from torch_modulo.singleshot import METHODS, SingleShotInfo, SingleShotUnwrap, unwrap_energy, unwrap_single
+from torch_modulo.singleshot.energy import EnergyParams, pair_offsets
+from torch_modulo.singleshot.graphcut import plane_energy
+from torch_modulo.singleshot.parallel import default_workers
+
+
+def scene(kind: str, size: int = 64, seed: int = 0) -> torch.Tensor:
+    """Smooth synthetic counts (float64, (size, size)) with a dark region at k = 0; 10 to 13 stops above the darkest
+    pixel at size 64 (smaller sizes are its top-left crop), no neighbour pair (diagonals included) 128 counts apart."""
+    y, x = np.mgrid[0:64, 0:64].astype(np.float64)
+    rng = np.random.default_rng(seed)
+
+    def bump(cy: float, cx: float, s: float) -> np.ndarray:
+        return np.exp(-((y - cy) ** 2 + (x - cx) ** 2) / (2 * s * s))
+
+    if kind == "ramp":  # 1 .. 7561 counts: 12.9 stops; steepest pair (diagonal) 120
+        img = 1 + 60 * x + 60 * y
+    elif kind == "bumps":  # two Gaussian bumps on a dark floor of 1 count: 1 .. ~2000, 11 stops
+        dy, dx = rng.uniform(-2, 2, 2)
+        img = 1 + np.maximum(0, 2200 * bump(30 + dy, 34 + dx, 17) + 500 * bump(14, 14, 9) - 220)
+    elif kind == "steps":  # a staircase of 100-count steps (below 2^(8-1)) on a gentle ramp: 10.8 stops
+        img = 1 + 100 * (x // 4) + 5 * y
+    elif kind == "mixed":  # ramp + staircase + bump: 11.2 stops
+        img = 1 + np.maximum(0, 12 * x + 10 * y + 16 * ((x + y) // 12) + 1500 * bump(40, 36, 17) - 150)
+    else:
+        raise ValueError(kind)
+    return torch.from_numpy(np.floor(img[:size, :size]).copy())
+
+
+def stops(counts: torch.Tensor) -> float:
+    return math.log2(float(counts.max()) / float(counts[counts > 0].min()))
+
+
+class TestUnwrapSingle:
+    def test_smoke(self) -> None:
+        truth = scene("ramp", 16)
+        out = unwrap_single(truth % 256)
+        assert out.shape == truth.shape
+        assert torch.equal(out, truth)
+
+    @pytest.mark.parametrize("kind", ["ramp", "bumps", "steps", "mixed"])
+    @pytest.mark.parametrize("method", ["paper", "fast"])
+    def test_recovers_smooth_scenes_exactly(self, kind: str, method: str) -> None:
+        truth = scene(kind)
+        assert 10 <= stops(truth) <= 13.5
+        out = unwrap_single(truth % 256, bits=8, method=method)
+        assert torch.equal(out, truth)
+
+    @pytest.mark.parametrize(
+        "options", [{"init": "quality"}, {"init": "zeros"}, {"contract": True}, {"tile": 0, "rel_tol": 0.0}]
+    )
+    def test_fast_options_recover(self, options: dict) -> None:
+        truth = scene("mixed")
+        assert torch.equal(unwrap_single(truth % 256, method="fast", **options), truth)
+
+    def test_auto_init_follows_residues(self) -> None:
+        # A smooth scene has no residues: "auto" starts from path following, which is already the minimum, so
+        # no move is accepted; from k = 0 it takes one accepted move per rollover level at least.
+        truth = scene("ramp", 32)
+        _, auto = unwrap_single(truth % 256, method="fast", return_info=True)
+        _, zeros = unwrap_single(truth % 256, method="fast", init="zeros", return_info=True)
+        assert int(auto.iterations[0, 0]) == 0
+        assert int(zeros.iterations[0, 0]) >= int(truth.max()) // 256
+
+    def test_four_neighbourhood_and_other_bits(self) -> None:
+        truth = scene("bumps", 48)
+        assert torch.equal(unwrap_single(truth % 256, neighborhood=4), truth)
+        coarse = torch.floor(truth / 8)  # 8 bits' worth of range wrapped by a 5-bit counter
+        assert torch.equal(unwrap_single(coarse % 32, bits=5), coarse)
+
+    @pytest.mark.parametrize("shape", [(12, 10), (2, 12, 10), (2, 3, 12, 10), (0, 3, 12, 10), (2, 0, 12, 10)])
+    def test_cardinality(self, shape: tuple, device: torch.device, dtype: torch.dtype) -> None:
+        g = torch.Generator().manual_seed(0)
+        modulus = torch.randint(0, 256, shape, generator=g).to(device=device, dtype=dtype)
+        out = unwrap_single(modulus, workers=1)
+        assert out.shape == modulus.shape and out.dtype == dtype and out.device == modulus.device
+        # restored = modulus + k 2^bits with k >= 0
+        k = (out - modulus) / 256
+        assert bool((k >= 0).all()) and torch.equal(k, torch.round(k))
+
+    def test_darkest_region_at_zero(self) -> None:
+        truth = scene("bumps") + 512  # the same scene two rollovers brighter: k is only known up to a constant
+        out = unwrap_single(truth % 256)
+        assert torch.equal(out, truth - 512)
+        assert float(out.min()) < 256
+
+    def test_energy_never_increases(self) -> None:
+        g = torch.Generator().manual_seed(1)
+        noisy = scene("bumps", 32) + torch.randint(-40, 41, (32, 32), generator=g)
+        modulus = noisy.clamp(min=0) % 256
+        for method in ("paper", "fast"):
+            out, info = unwrap_single(modulus, method=method, return_info=True)
+            energies = info.energies[0][0]
+            assert all(b < a for a, b in zip(energies, energies[1:], strict=False))
+            assert int(info.iterations[0, 0]) == len(energies) - 1
+            assert float(info.energy[0, 0]) == pytest.approx(float(unwrap_energy(out.double())))
+
+    def test_info_layout(self) -> None:
+        modulus = torch.stack([scene("ramp", 16), scene("steps", 16)]).unsqueeze(0) % 256  # (1, 2, 16, 16)
+        out, info = unwrap_single(modulus, return_info=True)
+        assert isinstance(info, SingleShotInfo) and info.method == "fast"
+        assert info.iterations.shape == info.cuts.shape == info.energy.shape == info.seconds.shape == (1, 2)
+        assert len(info.energies) == 1 and len(info.energies[0]) == 2
+        assert bool((info.cuts >= info.iterations).all())
+        _, info_hw = unwrap_single(modulus[0, 0], return_info=True)
+        assert info_hw.iterations.shape == (1, 1)
+
+    @pytest.mark.parametrize("seed", range(5))
+    def test_matches_brute_force_minimum(self, seed: int) -> None:
+        # 2 x 3 images, 3-bit counter: enumerate every k in {0..3}^6 and compare with the solver, up to a constant.
+        rng = np.random.default_rng(seed)
+        truth = np.cumsum(rng.integers(0, 4, (2, 3)), axis=1) + np.array([[0], [2]]) + 3 * rng.integers(0, 2)
+        modulus = truth % 8
+        p = EnergyParams.make(3)
+        ks = np.array(list(itertools.product(range(4), repeat=6))).reshape(-1, 2, 3)
+        energies = np.array([plane_energy(modulus + 8 * k, p, pair_offsets(8)) for k in ks])
+        best = ks[energies.argmin()]
+        for method in ("paper", "fast"):
+            out = unwrap_single(torch.from_numpy(modulus).double(), bits=3, method=method).numpy().astype(np.int64)
+            k = (out - modulus) // 8
+            assert plane_energy(out, p, pair_offsets(8)) == pytest.approx(energies.min())
+            assert np.all(k - best == (k - best).flat[0])
+
+    def test_batched_equals_per_image(self) -> None:
+        g = torch.Generator().manual_seed(2)
+        noise = torch.randint(-30, 31, (2, 2, 20, 20), generator=g)
+        batch = (torch.stack([scene("bumps", 20, s) for s in range(4)]).reshape(2, 2, 20, 20) + noise).clamp(min=0)
+        modulus = batch % 256
+        out = unwrap_single(modulus, workers=1)
+        for b in range(2):
+            for c in range(2):
+                assert torch.equal(out[b, c], unwrap_single(modulus[b, c], workers=1))
+        assert torch.equal(out[1], unwrap_single(modulus[1], workers=1))
+
+    def test_workers_agree(self) -> None:
+        g = torch.Generator().manual_seed(3)
+        modulus = torch.randint(0, 256, (1, 3, 16, 16), generator=g).double()
+        one = unwrap_single(modulus, workers=1)
+        two = unwrap_single(modulus, workers=2)
+        assert torch.equal(one, two)
+
+    def test_default_workers(self) -> None:
+        assert default_workers(1, 10**8) == 1
+        assert default_workers(8, 100) == 1  # too small for a pool
+        assert 1 <= default_workers(3, 10**7) <= 3
+
+    def test_input_unmodified(self) -> None:
+        modulus = scene("ramp", 16) % 256
+        before = modulus.clone()
+        unwrap_single(modulus)
+        assert torch.equal(modulus, before)
+
+    def test_module_equals_function(self) -> None:
+        modulus = (scene("mixed", 24) % 256).reshape(1, 1, 24, 24)
+        module = SingleShotUnwrap(bits=8, method="fast", init="quality")
+        assert torch.equal(module(modulus), unwrap_single(modulus, method="fast", init="quality"))
+        assert torch.equal(SingleShotUnwrap()(modulus), unwrap_single(modulus))
+
+    def test_methods_registry(self) -> None:
+        assert {"paper", "fast"} <= set(METHODS)
+
+    @pytest.mark.parametrize(
+        ("modulus", "kwargs", "error", "text"),
+        [
+            (torch.tensor([[0.0, 256.0]]), {}, ValueError, "256"),
+            (torch.tensor([[0.0, -1.0]]), {}, ValueError, "-1"),
+            (torch.tensor([[0.0, math.nan]]), {}, ValueError, "NaN"),
+            (torch.tensor([[0.0, 2.5]]), {}, ValueError, "2.5"),
+            (torch.zeros(0, 5), {}, ValueError, r"\(0, 5\)"),
+            (torch.zeros(3, 0, 5), {}, ValueError, r"\(3, 0, 5\)"),
+            (torch.zeros(5), {}, ValueError, r"\(5,\)"),
+            (torch.zeros(1, 1, 1, 4, 4), {}, ValueError, r"\(1, 1, 1, 4, 4\)"),
+            (torch.zeros(4, 4, dtype=torch.int64), {}, TypeError, "int64"),
+            (np.zeros((4, 4)), {}, TypeError, "ndarray"),
+            (torch.zeros(4, 4), {"bits": 0}, ValueError, "0"),
+            (torch.zeros(4, 4, dtype=torch.float16), {"bits": 12}, ValueError, "12"),
+            (torch.zeros(4, 4), {"method": "magic"}, ValueError, "magic"),
+            (torch.zeros(4, 4), {"neighborhood": 6}, ValueError, "6"),
+            (torch.zeros(4, 4), {"sigma": 0}, ValueError, "0"),
+            (torch.zeros(4, 4), {"max_iter": -1}, ValueError, "-1"),
+            (torch.zeros(4, 4), {"max_iter": 2.0}, TypeError, "2.0"),
+            (torch.zeros(4, 4), {"workers": 0}, ValueError, "0"),
+            (torch.zeros(4, 4), {"a1": -0.1}, ValueError, "-0.1"),
+            (torch.zeros(4, 4), {"return_info": 1}, TypeError, "1"),
+            (torch.zeros(4, 4), {"method": "paper", "init": "zeros"}, TypeError, "init"),
+            (torch.zeros(4, 4), {"method": "fast", "init": "random"}, ValueError, "random"),
+            (torch.zeros(4, 4), {"method": "fast", "rel_tol": -1.0}, ValueError, "-1.0"),
+            (torch.zeros(4, 4), {"method": "fast", "tile": 1}, ValueError, "1"),
+            (torch.zeros(4, 4), {"method": "fast", "contract": "yes"}, TypeError, "yes"),
+            (torch.zeros(4, 4), {"method": "fast", "speed": 3}, TypeError, "speed"),
+        ],
+    )
+    def test_exceptions(self, modulus: object, kwargs: dict, error: type, text: str) -> None:
+        with pytest.raises(error, match=text):
+            unwrap_single(modulus, **kwargs)  # type: ignore[arg-type]
+
+    def test_module_validates_in_init(self) -> None:
+        with pytest.raises(ValueError, match="magic"):
+            SingleShotUnwrap(method="magic")
+        with pytest.raises(TypeError, match="tile"):
+            SingleShotUnwrap(method="paper", tile=8)
+
+
+@pytest.mark.slow
+def test_fast_energy_not_above_paper_on_a_real_scene(shared_hdr) -> None:  # noqa: ANN001
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(shared_hdr / "hdr-samples" / "memorial.hdr"))
+    rgb = np.maximum(np.asarray(inp.read_image(0, 0, 0, 3, "float"), dtype=np.float64), 0)
+    inp.close()
+    y = (0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2])[::8, ::8]
+    truth = torch.from_numpy(np.floor(np.clip(y / np.percentile(y, 99.9) * 4095, 0, 4095)))
+    modulus = truth % 256
+    paper = unwrap_single(modulus, method="paper")
+    fast = unwrap_single(modulus, method="fast")
+    assert float(unwrap_energy(fast)) <= float(unwrap_energy(paper)) * 1.001
