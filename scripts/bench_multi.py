@@ -22,22 +22,15 @@ import numpy as np
 import torch
 
 import torch_modulo as tm
+from torch_modulo import protocols
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hdr"
 
 
 def load(path: Path, size: int) -> torch.Tensor:
     """(1, 3, H, W) float64 radiance, area-averaged by whole pixels until the longer side is <= size."""
-    image = tm.io.read_image(path)[:3].double().clamp_min(0)
-    if image.shape[0] == 1:
-        image = image.expand(3, -1, -1)
-    factor = 1
-    while max(image.shape[1:]) / factor > size:
-        factor += 1
-    if factor > 1:
-        h, w = (image.shape[1] // factor) * factor, (image.shape[2] // factor) * factor
-        image = torch.nn.functional.avg_pool2d(image[None, :, :h, :w], factor)[0]
-    return image[None]
+    image = protocols.load_scene(path, size)
+    return image.expand(3, -1, -1)[None]
 
 
 def exact_share(radiance: torch.Tensor, taus: list[float], bits: int, method: str) -> float:
@@ -56,7 +49,7 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None)
     args = parser.parse_args()
 
-    files = sorted(p for p in args.data.rglob("*") if p.suffix.lower() in (".exr", ".hdr"))[: args.limit]
+    files = protocols.list_scenes(args.data)[: args.limit]
     if not files:
         raise SystemExit(f"no .exr/.hdr scenes under {args.data}")
     rng = np.random.default_rng(args.seed)

@@ -44,6 +44,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torch_modulo import protocols
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data" / "hdr"
 BITS_TRUE = 12
@@ -55,72 +57,17 @@ PEAK = 2**BITS_TRUE - 1
 # ----------------------------------------------------------------------------------------------------- scenes
 
 
-def list_scenes(data: Path) -> list[Path]:
-    return sorted(p for p in data.rglob("*") if p.suffix.lower() in (".exr", ".hdr"))
-
-
-def read_scene(path: Path) -> np.ndarray:
-    """(C, H, W) float64 radiance, C = 3 (or 1 for luminance-only files); NaN/Inf and negatives set to 0."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise RuntimeError(f"cannot open {path}: {oiio.geterror()}")
-    spec = inp.spec()
-    names = list(spec.channelnames)
-    if all(c in names for c in "RGB"):
-        first = names.index("R")
-        px = inp.read_image(0, 0, first, first + 3, "float")
-        px = np.asarray(px, dtype=np.float64)[..., [names.index(c) - first for c in "RGB"]]
-    else:
-        px = np.asarray(inp.read_image(0, 0, 0, 1, "float"), dtype=np.float64)
-    inp.close()
-    if px.ndim == 2:
-        px = px[..., None]
-    px = np.nan_to_num(px, nan=0.0, posinf=0.0, neginf=0.0)
-    return np.maximum(px, 0.0).transpose(2, 0, 1)
-
-
-def downsample(img: np.ndarray, longest: int) -> np.ndarray:
-    """Whole-pixel area averaging by the smallest integer factor that brings the longer side to <= longest."""
-    c, h, w = img.shape
-    f = max(1, math.ceil(max(h, w) / longest))
-    if f == 1:
-        return img
-    h2, w2 = h // f * f, w // f * f
-    return img[:, :h2, :w2].reshape(c, h2 // f, f, w2 // f, f).mean(axis=(2, 4))
+def load(path: Path, scale: int) -> np.ndarray:
+    """(C, H, W) float64 radiance, area-downsampled (torch_modulo.protocols.load_scene)."""
+    return protocols.load_scene(path, scale).numpy()
 
 
 def protocol_a(rgb: np.ndarray) -> np.ndarray:
-    """(1, H, W) 12-bit counts from luminance scaled to put its 99.9th percentile at 4095."""
-    y = rgb[0] if rgb.shape[0] == 1 else 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
-    p = float(np.percentile(y, 99.9))
-    if p <= 0:
-        p = float(y.max()) or 1.0
-    return np.floor(np.clip(y * (PEAK / p), 0, PEAK))[None]
+    return protocols.protocol_a(torch.from_numpy(rgb), peak=PEAK).numpy()
 
 
-def protocol_b(rgb: np.ndarray, share: float = 0.2) -> np.ndarray:
-    """(C, H, W) 12-bit counts with an exposure that makes ``share`` of the pixels roll over in some channel."""
-    lo, hi = float(rgb.min()), float(rgb.max())
-    x = (rgb - lo) / (hi - lo) if hi > lo else np.zeros_like(rgb)
-
-    def counts(e: float) -> np.ndarray:
-        return np.floor(np.clip(x * e, 0, 1) * PEAK)
-
-    def rolled(e: float) -> float:
-        return float((counts(e) >= PERIOD).any(axis=0).mean())
-
-    e_lo, e_hi = 1e-6, 1.0
-    while rolled(e_hi) < share and e_hi < 2.0**40:
-        e_lo, e_hi = e_hi, e_hi * 2
-    for _ in range(60):
-        mid = math.sqrt(e_lo * e_hi)
-        if rolled(mid) < share:
-            e_lo = mid
-        else:
-            e_hi = mid
-    return counts(e_hi)
+def protocol_b(rgb: np.ndarray) -> np.ndarray:
+    return protocols.protocol_b(torch.from_numpy(rgb), peak=PEAK, period=PERIOD).numpy()
 
 
 # ------------------------------------------------------------------------------------------------------ methods
@@ -294,7 +241,7 @@ def main(argv: list[str] | None = None) -> None:
         run_memory(args.methods, args.memory_sizes)
         return
 
-    scenes = list_scenes(args.data)
+    scenes = protocols.list_scenes(args.data)
     if args.max_scenes:
         scenes = scenes[: args.max_scenes]
     if not scenes:
@@ -309,7 +256,7 @@ def main(argv: list[str] | None = None) -> None:
             head += f" | {m + ' k%':>9s} {'dB':>6s} {'s/MP/ch':>8s}" + (f" {'E/Ep':>7s}" if with_energy else "")
         print(head + (f" | {'Etrue/Ep':>8s}" if with_energy else ""), flush=True)
         for path in scenes:
-            rgb = downsample(read_scene(path), args.scale)
+            rgb = load(path, args.scale)
             truth = protocol_a(rgb) if proto == "A" else protocol_b(rgb)
             modulus = np.mod(truth, PERIOD)
             row = {"scene": str(path.relative_to(args.data)), "shape": list(truth.shape)}

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -26,51 +25,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torch_modulo import protocols
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data" / "hdr"
 CACHE = Path(os.environ.get("TM_RESEARCH_CACHE", "/tmp/tm_research_cache"))
 
 
 def list_scenes(data: Path) -> list[Path]:
-    return sorted(p for p in data.rglob("*") if p.suffix.lower() in (".exr", ".hdr"))
-
-
-def _read(path: Path) -> np.ndarray:
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise RuntimeError(f"cannot open {path}: {oiio.geterror()}")
-    spec = inp.spec()
-    names = list(spec.channelnames)
-    grey = names[0] == "Y" or spec.nchannels < 3
-    px = inp.read_image(0, 0, 0, 1 if grey else 3, "float")
-    inp.close()
-    px = np.asarray(px, dtype=np.float64)
-    if px.ndim == 2:
-        px = px[..., None]
-    if px.shape[2] == 1:
-        px = np.repeat(px, 3, axis=2)
-    px = np.nan_to_num(px, nan=0.0, posinf=0.0, neginf=0.0)
-    return np.maximum(px, 0.0).transpose(2, 0, 1)  # (3, H, W)
-
-
-def downsample(img: np.ndarray, longest: int = 512) -> np.ndarray:
-    """Whole-pixel area averaging by the smallest integer factor that brings the longer side to <= longest."""
-    c, h, w = img.shape
-    f = max(1, math.ceil(max(h, w) / longest))
-    if f == 1:
-        return img
-    h2, w2 = h // f, w // f
-    return img[:, : h2 * f, : w2 * f].reshape(c, h2, f, w2, f).mean(axis=(2, 4))
+    return protocols.list_scenes(data)
 
 
 def load_scene(path: Path, longest: int = 512) -> np.ndarray:
+    """(3, H, W) float64 radiance (grey files repeated), cached as .npy under CACHE."""
     CACHE.mkdir(parents=True, exist_ok=True)
     key = CACHE / f"{path.parent.name}__{path.stem}__{longest}.npy"
     if key.exists():
         return np.load(key)
-    img = downsample(_read(path), longest)
+    img = protocols.load_scene(path, longest).expand(3, -1, -1).numpy()
     tmp = key.with_suffix(".tmp.npy")
     np.save(tmp, img)
     os.replace(tmp, key)
@@ -78,32 +50,11 @@ def load_scene(path: Path, longest: int = 512) -> np.ndarray:
 
 
 def protocol_a(rgb: np.ndarray) -> np.ndarray:
-    """(1, H, W) true 12-bit counts of the luminance scaled so its 99.9th percentile is 4095."""
-    y = 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
-    p = np.percentile(y, 99.9)
-    scale = 4095.0 / p if p > 0 else 1.0
-    return np.floor(np.clip(y * scale, 0, 4095))[None]
+    return protocols.protocol_a(torch.from_numpy(rgb)).numpy()
 
 
 def protocol_b(rgb: np.ndarray, share: float = 0.2) -> np.ndarray:
-    """(3, H, W) true counts: min-max scaled RGB, exposure by bisection so ``share`` of pixels roll over."""
-    lo, hi = rgb.min(), rgb.max()
-    x = (rgb - lo) / (hi - lo) if hi > lo else np.zeros_like(rgb)
-
-    def rolled(e: float) -> float:
-        return float((np.floor(np.clip(x * e, 0, 1) * 4095) >= 256).any(axis=0).mean())
-
-    a, b = 1e-3, 1.0
-    while rolled(b) < share and b < 1e12:
-        b *= 2
-    for _ in range(80):
-        m = math.sqrt(a * b)
-        if rolled(m) < share:
-            a = m
-        else:
-            b = m
-    e = b
-    return np.floor(np.clip(x * e, 0, 1) * 4095)
+    return protocols.protocol_b(torch.from_numpy(rgb), share=share).numpy()
 
 
 # ------------------------------------------------------------------------------------------------- methods
