@@ -26,7 +26,7 @@ import torch
 from torch_modulo import io
 from torch_modulo.assets import default_scene_path
 from torch_modulo.capture import capture_intensity, capture_modulo
-from torch_modulo.metrics import exact_k_share, psnr
+from torch_modulo.metrics import exact_k_map, exact_k_share, psnr
 from torch_modulo.multishot import merge_intensity, unwrap_multi
 from torch_modulo.singleshot import unwrap_single
 from torch_modulo.tonemap import REC709_LUMA, tonemap_histogram
@@ -162,7 +162,7 @@ def run_demo(
         target = out / f"{name}_tonemapped.png"
         io.write_image(target, image[0], dtype="uint8", normalized=True)
         written.append(target)
-    k_error = (torch.floor(restored / 2**bits) != torch.floor(truth / 2**bits)).any(dim=1, keepdim=True)
+    k_error = (~exact_k_map(restored, truth, bits)).any(dim=1, keepdim=True)  # offsets aligned as in exact_k
     panels = [
         ("ground truth (tone-mapped)", display["truth"][0]),
         (f"{bits}-bit intensity camera", display["intensity"][0]),
