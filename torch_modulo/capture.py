@@ -50,7 +50,8 @@ def _needs_grad(*tensors: torch.Tensor) -> bool:
 CPU_TILE = 1 << 19
 
 
-def _column_tiles(n: int, rows: int) -> list[slice]:
+def column_tiles(n: int, rows: int) -> list[slice]:
+    """Column slices of a (rows, n) array so that each tile holds about ``CPU_TILE`` elements (>= 1024 columns)."""
     width = max(1024, CPU_TILE // max(rows, 1))
     return [slice(start, min(start + width, n)) for start in range(0, n, width)]
 
@@ -89,7 +90,7 @@ def _elementwise_(
         return y.clamp_(max=clip_top) if clip_top is not None else _wrap_rows_(y, period, torch.empty_like(y))
     flat, t = rows
     out = torch.empty_like(flat)
-    tiles = _column_tiles(flat.shape[1], flat.shape[0])
+    tiles = column_tiles(flat.shape[1], flat.shape[0])
     scratch = torch.empty((flat.shape[0], tiles[0].stop - tiles[0].start if tiles else 0), dtype=x.dtype)
     for cols in tiles:
         o = out[:, cols]

@@ -22,7 +22,7 @@ convention: the lower edge of the final cell) or, with ``return_counts=True``, t
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 
 import torch
 from torch import nn
@@ -34,6 +34,7 @@ from torch_modulo._checks import (
     check_modulus,
     exposure_tensor,
 )
+from torch_modulo.capture import column_tiles
 
 __all__ = [
     "IntensityMerge",
@@ -45,14 +46,6 @@ __all__ = [
 
 _METHODS = ("robust", "paper")
 _WEIGHTS = ("binary", "hat")
-
-#: Elements per CPU tile (all batch items together): the float64 working set stays in the L2/L3 caches.
-_CPU_TILE = 1 << 19
-
-
-def _tiles(n: int, tile: int) -> Iterator[slice]:
-    for start in range(0, n, tile):
-        yield slice(start, min(start + tile, n))
 
 
 def _stack_exposures(
@@ -186,14 +179,15 @@ def _unwrap_tiles(
     period = float(2**bits)
     inv_p = 1.0 / period
     on_cpu = frames.device.type == "cpu"
-    tile = max(1024, _CPU_TILE // max(b, 1)) if on_cpu else n
+    tiles = column_tiles(n, b) if on_cpu else [slice(0, n)]  # float64 work stays in cache on the CPU
+    tile = tiles[0].stop
     work = torch.float64 if (on_cpu or frames.device.type == "cuda") else frames.dtype
     scale = (ratios * inv_p).to(work).unsqueeze(-1)  # (B, M-1, 1): r / P
     tau_max = tau[:, -1:].to(work)
     counts = torch.empty((b, min(tile, n)), dtype=work, device=frames.device)
     scratch = torch.empty((b, min(tile, n)), dtype=frames.dtype, device=frames.device)
     bad = False
-    for cols in _tiles(n, tile):
+    for cols in tiles:
         width = cols.stop - cols.start
         acc, tmp = counts[:, :width], scratch[:, :width]
         for i in range(m):
