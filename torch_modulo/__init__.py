@@ -42,9 +42,11 @@ from torch_modulo.singleshot import (
     Potential,
     SingleShotInfo,
     SingleShotUnwrap,
+    UnwrapConfidence,
     UnwrapEnergy,
     is_representable,
     potential,
+    unwrap_confidence,
     unwrap_energy,
     unwrap_single,
 )
@@ -66,9 +68,11 @@ __version__ = "0.1.0"
 __all__ = [
     "Potential",
     "UnwrapEnergy",
+    "UnwrapConfidence",
     "is_representable",
     "potential",
     "unwrap_energy",
+    "unwrap_confidence",
     "SingleShotInfo",
     "SingleShotUnwrap",
     "unwrap_single",

@@ -17,7 +17,8 @@ Methods (``method=``; new methods register in :data:`METHODS`):
 See docs/singleshot.md for the measurements.
 
 Unwrapping fixes ``k`` up to one constant per image and channel; the output puts the darkest large connected
-region at ``k = 0`` and no pixel below it (``k >= 0``).
+region at ``k = 0`` and no pixel below it (``k >= 0``). :func:`unwrap_confidence` tells, per pixel, whether the
+level of a result is determined by the data or guessed (:mod:`torch_modulo.singleshot.confidence`).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import MAX_BITS, check_bits, check_floating, check_image_shape, check_modulus, check_tensor
+from torch_modulo.singleshot.confidence import UnwrapConfidence, unwrap_confidence
 from torch_modulo.singleshot.energy import (
     EnergyParams,
     Potential,
@@ -48,10 +50,12 @@ __all__ = [
     "Potential",
     "SingleShotInfo",
     "SingleShotUnwrap",
+    "UnwrapConfidence",
     "UnwrapEnergy",
     "is_representable",
     "potential",
     "shutdown_workers",
+    "unwrap_confidence",
     "unwrap_energy",
     "unwrap_single",
 ]

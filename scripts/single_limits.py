@@ -1,0 +1,207 @@
+"""How much of a real scene can single-shot unwrapping recover at all, and does the confidence map find the rest?
+
+For every scene of ../shared/data/hdr under protocols A and B of BENCHMARKS.md (same scenes, downsampling and
+scores as scripts/bench_single.py), per channel:
+
+- ``largest``: the share of pixels in the largest region joined by true neighbour steps ``|I_i - I_j| < 128``
+  (8-neighbourhood). Inside such a region the wrapped differences integrate to the truth; between regions only
+  a prior can choose the level.
+- ``oracle``: exact-k and PSNR of path following on a spanning tree that uses only truly smooth pairs where it
+  can (told by the truth which 4-neighbour steps are below half a period). No smoothness-based method can do
+  better than knowing exactly where the steep steps are, so this bounds every method that unwraps by
+  integrating small differences (the paper's energy, phase unwrapping, the priors of docs/singleshot.md).
+- ``method``: exact-k and PSNR of a method (``--method``: ``quality`` path following by default, ``fast``,
+  ``paper`` or ``skimage``), and how well :func:`torch_modulo.singleshot.unwrap_confidence` on its result finds
+  its errors: the ROC AUC of ``1 - confidence`` for "k is wrong" (after the global offset is aligned), and the
+  share of the wrong pixels among the 10% least confident.
+
+Examples:
+    python scripts/single_limits.py                      # both protocols, quality-guided path following
+    python scripts/single_limits.py --protocols A --method fast --max-scenes 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_single import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores  # noqa: E402
+
+from torch_modulo import protocols  # noqa: E402
+from torch_modulo.singleshot import unwrap_confidence  # noqa: E402
+from torch_modulo.singleshot.energy import pair_offsets, pair_slices  # noqa: E402
+from torch_modulo.singleshot.init import quality_guided_k, wrapped_difference  # noqa: E402
+
+
+def _pair_arrays(shape: tuple[int, int], offsets) -> list[tuple[np.ndarray, np.ndarray, tuple, tuple]]:
+    h, w = shape
+    ids = np.arange(h * w).reshape(h, w)
+    out = []
+    for off in offsets:
+        first, second = pair_slices(h, w, off)
+        out.append((ids[first].ravel(), ids[second].ravel(), first, second))
+    return out
+
+
+def largest_smooth_region(truth: np.ndarray) -> float:
+    """Share of the pixels in the largest region joined by true steps below half a period (8-neighbourhood)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = truth.size
+    rows, cols = [], []
+    for i, j, first, second in _pair_arrays(truth.shape, pair_offsets(8)):
+        smooth = (np.abs(truth[first] - truth[second]) < PERIOD // 2).ravel()
+        rows.append(i[smooth])
+        cols.append(j[smooth])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    _, labels = connected_components(coo_matrix((np.ones(r.size), (r, c)), shape=(n, n)).tocsr(), directed=False)
+    return float(np.bincount(labels).max() / n)
+
+
+def oracle_k(truth: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Path following on a spanning tree of truly smooth 4-neighbour pairs (steep pairs only where unavoidable)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+
+    rng = np.random.default_rng(seed)
+    h, w = truth.shape
+    n = h * w
+    modulus = np.mod(truth, PERIOD).astype(np.int64)
+    rows, cols, weights = [], [], []
+    for i, j, first, second in _pair_arrays(truth.shape, pair_offsets(4)):
+        steep = (np.abs(truth[first] - truth[second]) >= PERIOD // 2).ravel()
+        rows.append(i)
+        cols.append(j)
+        # Ties broken at random so that the tree is not biased to rows or columns.
+        weights.append(np.where(steep, 1000.0, 1.0) + 1e-3 * rng.random(i.size))
+    graph = coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    tree = minimum_spanning_tree(graph.tocsr())
+    _, pred = breadth_first_order(tree, 0, directed=False, return_predecessors=True)
+    parent = np.where(pred < 0, np.arange(n), pred)
+    flat = modulus.ravel()
+    d = flat - flat[parent]
+    step = (wrapped_difference(d, PERIOD) - d) // PERIOD
+    # Sum the steps up to the root by pointer jumping.
+    total = step.copy()
+    while True:
+        grand = parent[parent]
+        if np.array_equal(grand, parent):
+            break
+        total += total[parent]
+        parent = grand
+    k = total.reshape(h, w)
+    return k - k.min()
+
+
+def restore(method: str, modulus: np.ndarray) -> tuple[np.ndarray, float]:
+    """(C, H, W) restored counts and seconds."""
+    if method == "quality":
+        start = time.perf_counter()
+        out = np.stack([m + PERIOD * quality_guided_k(m.astype(np.int64), BITS) for m in modulus]).astype(np.float64)
+        out -= PERIOD * np.floor(out.reshape(out.shape[0], -1).min(axis=1) / PERIOD)[:, None, None]
+        return out, time.perf_counter() - start
+    return run_method(method, modulus, 1)
+
+
+def auc(score: np.ndarray, positive: np.ndarray) -> float:
+    """ROC AUC of ``score`` for ``positive`` (ties get their mean rank); NaN without both classes."""
+    from scipy.stats import rankdata
+
+    n_pos = int(positive.sum())
+    n_neg = positive.size - n_pos
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    ranks = rankdata(score)
+    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def confidence_scores(restored: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
+    """AUC of 1 - confidence for wrong k, share of wrong pixels among the 10% least confident, share wrong."""
+    conf = unwrap_confidence(torch.from_numpy(restored), BITS).numpy().ravel()
+    shifted = aligned(restored, truth)
+    wrong = (np.floor(shifted / PERIOD) != np.floor(truth / PERIOD)).ravel()
+    order = np.argsort(conf, kind="stable")
+    low = order[: max(1, int(0.1 * conf.size))]
+    caught = float(wrong[low].sum() / wrong.sum()) if wrong.any() else float("nan")
+    return auc(-conf, wrong), caught, float(wrong.mean())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--protocols", nargs="+", default=["A", "B"], choices=["A", "B"])
+    parser.add_argument("--method", default="quality", help="quality (default), fast, paper or skimage")
+    parser.add_argument("--scale", type=int, default=512)
+    parser.add_argument("--max-scenes", type=int, default=0)
+    args = parser.parse_args()
+    scenes = protocols.list_scenes(args.data)
+    if args.max_scenes:
+        scenes = scenes[: args.max_scenes]
+    if not scenes:
+        sys.exit(f"no .exr/.hdr scenes under {args.data}")
+    for proto in args.protocols:
+        rows = []
+        print(f"protocol {proto}: scene, largest smooth region, oracle exact-k / PSNR, {args.method} exact-k / PSNR,")
+        print("  confidence AUC, share of errors among the 10% least confident, share wrong")
+        for path in scenes:
+            rgb = load(path, args.scale)
+            truth = protocol_a(rgb) if proto == "A" else protocol_b(np.broadcast_to(rgb, (3, *rgb.shape[1:])).copy())
+            modulus = np.mod(truth, PERIOD)
+            largest = float(np.mean([largest_smooth_region(t) for t in truth]))
+            oracle = np.stack([np.mod(t, PERIOD) + PERIOD * oracle_k(t) for t in truth])
+            o_k, o_psnr = scores(oracle, truth)
+            restored, _ = restore(args.method, modulus)
+            m_k, m_psnr = scores(restored, truth)
+            c_auc, caught, wrong = confidence_scores(restored, truth)
+            row = {
+                "scene": path.name,
+                "largest": largest,
+                "oracle_k": o_k,
+                "oracle_psnr": o_psnr,
+                "k": m_k,
+                "psnr": m_psnr,
+                "conf_auc": c_auc,
+                "caught10": caught,
+                "wrong": wrong,
+            }
+            rows.append(row)
+            print(
+                f"{path.name[:30]:30s} {largest:.3f} | {o_k:.3f} {o_psnr:6.2f} | {m_k:.3f} {m_psnr:6.2f} | "
+                f"{c_auc:.3f} {caught:.2f} {wrong:.3f}",
+                flush=True,
+            )
+
+        def mean(key: str, subset=rows) -> float:
+            values = [min(r[key], 100.0) for r in subset if np.isfinite(r[key])]
+            return float(np.mean(values)) if values else float("nan")
+
+        good = [r for r in rows if r["wrong"] < 0.1]
+        summary = {
+            "protocol": proto,
+            "method": args.method,
+            "scenes": len(rows),
+            "largest_smooth_region": mean("largest"),
+            "oracle_exact_k": mean("oracle_k"),
+            "oracle_psnr": mean("oracle_psnr"),
+            "exact_k": mean("k"),
+            "psnr": mean("psnr"),
+            "confidence_auc": mean("conf_auc"),
+            "errors_in_least_confident_10pct": mean("caught10"),
+            "scenes_under_10pct_wrong": len(good),
+            "confidence_auc_those": mean("conf_auc", good),
+            "errors_in_least_confident_10pct_those": mean("caught10", good),
+        }
+        print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()
