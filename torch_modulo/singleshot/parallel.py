@@ -7,7 +7,8 @@ that takes numpy arrays and a frozen, picklable :class:`SolverSpec`, and returns
 Python data. One worker, one plane or a small total runs in-process with no pool.
 
 Methods are registered in :data:`METHODS` (name -> solver); new methods add an entry and, if they take
-options, an entry in :data:`METHOD_OPTIONS`.
+options, an entry in :data:`METHOD_OPTIONS`. A solver takes a group of planes: one plane for the methods that
+solve every channel alone, all channels of an image for the methods in :data:`JOINT_CHANNELS`.
 """
 
 from __future__ import annotations
@@ -33,15 +34,17 @@ from torch_modulo.singleshot.graphcut import (
     solve_pixels,
     solve_tiles,
 )
-from torch_modulo.singleshot.init import quality_guided_k, residue_density
+from torch_modulo.singleshot.init import quality_guided_colour_k, quality_guided_k, residue_density
 
 __all__ = [
+    "JOINT_CHANNELS",
     "METHODS",
     "METHOD_OPTIONS",
     "SolverSpec",
     "default_workers",
     "run_planes",
     "shutdown_workers",
+    "solve_group",
     "solve_plane",
 ]
 
@@ -63,7 +66,9 @@ class SolverSpec:
         sigma: the paper's larger step (1 disables it).
         max_iter: the most global cuts.
         options: method-specific options as sorted ``(name, value)`` pairs.
-        anchor_fraction: the smallest region (share of the pixels) that may anchor ``k = 0``.
+        anchor_fraction: the smallest region (share of the pixels) that may anchor ``k = 0`` (see
+            :func:`~torch_modulo.singleshot.graphcut.anchor_k`: regions under 3% anchor only with mostly smooth
+            borders).
     """
 
     method: str
@@ -116,46 +121,99 @@ def _solve_fast(modulus: np.ndarray, spec: SolverSpec, stats: MoveStats) -> np.n
     return restored
 
 
-#: Solver functions by method name: ``(modulus (H, W) int64, spec, stats) -> restored (H, W) int64``.
-METHODS: dict[str, Callable[[np.ndarray, SolverSpec, MoveStats], np.ndarray]] = {
-    "paper": _solve_paper,
-    "fast": _solve_fast,
+def _solve_guided(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
+    """Reliability-guided path following (Herraez et al. 2002), no graph cut; with ``colour`` the channels of an
+    image share one tree whose reliabilities sum the second differences of all channels."""
+    p = spec.params
+    start = time.perf_counter()
+    if spec.option("colour"):
+        k = quality_guided_colour_k(moduli, p.bits)
+    else:
+        k = np.stack([quality_guided_k(m, p.bits) for m in moduli])
+    restored = moduli + p.period * k
+    for plane, st in zip(restored, stats, strict=True):
+        st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
+        st.tick("guided", start)
+    return restored
+
+
+def _per_plane(
+    solver: Callable[[np.ndarray, SolverSpec, MoveStats], np.ndarray],
+) -> Callable[[np.ndarray, SolverSpec, list[MoveStats]], np.ndarray]:
+    """Turn a one-plane solver into a group solver (each plane alone)."""
+
+    def solve(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
+        return np.stack([solver(m, spec, st) for m, st in zip(moduli, stats, strict=True)])
+
+    solve.__doc__ = solver.__doc__
+    return solve
+
+
+#: Solver functions by method name: ``(moduli (G, H, W) int64, spec, one MoveStats per plane) -> restored
+#: (G, H, W) int64``.
+METHODS: dict[str, Callable[[np.ndarray, SolverSpec, list[MoveStats]], np.ndarray]] = {
+    "paper": _per_plane(_solve_paper),
+    "fast": _per_plane(_solve_fast),
+    "guided": _solve_guided,
 }
+
+#: Methods whose task is a whole image (all its channels together); the others get one plane per task.
+JOINT_CHANNELS: frozenset[str] = frozenset({"guided"})
 
 #: Options each method accepts, with their defaults.
 METHOD_OPTIONS: dict[str, dict[str, Any]] = {
     "paper": {},
     "fast": {"init": "auto", "rel_tol": 3e-4, "tile": 64, "contract": False},
+    "guided": {"colour": True},
 }
 
 
-def solve_plane(modulus: np.ndarray, spec: SolverSpec) -> tuple[np.ndarray, dict[str, Any]]:
-    """Solve one (H, W) plane: the worker task. Top-level, numpy in, numpy and plain data out.
+def solve_group(moduli: np.ndarray, spec: SolverSpec) -> list[tuple[np.ndarray, dict[str, Any]]]:
+    """Solve a group of planes (one plane, or the channels of one image): the worker task.
+
+    Top-level, numpy in, numpy and plain data out.
 
     Args:
-        modulus: (H, W) integer-valued array in ``[0, 2**bits)``.
+        moduli: (G, H, W) integer-valued array in ``[0, 2**bits)``.
         spec: what to solve and how.
 
     Returns:
-        ``(restored, info)``: the restored counts (int64, ``k >= 0``, darkest large region at ``k = 0``) and a
-        dict with ``energies`` (before the first move and after each accepted one), ``steps``, ``cuts``,
-        ``seconds`` and ``energy`` (of the returned counts).
+        One ``(restored, info)`` per plane: the restored counts (int64, ``k >= 0``, darkest large region at
+        ``k = 0``) and a dict with ``energies`` (before the first move and after each accepted one), ``steps``,
+        ``cuts``, ``seconds`` (the group's wall time, split evenly over its planes) and ``energy`` (of the
+        returned counts).
     """
     start = time.perf_counter()
-    stats = MoveStats()
-    modulus = np.asarray(modulus, dtype=np.int64)
-    restored = METHODS[spec.method](modulus, spec, stats)
-    k = anchor_k((restored - modulus) // spec.params.period, spec.anchor_fraction)
-    restored = modulus + spec.params.period * k
-    energy = plane_energy(restored, spec.params, pair_offsets(spec.neighborhood))
-    info = {
-        "energies": [float(e) for e in stats.energies],
-        "steps": [int(s) for s in stats.steps],
-        "cuts": int(stats.cuts),
-        "seconds": time.perf_counter() - start,
-        "energy": float(energy),
-    }
-    return restored, info
+    moduli = np.asarray(moduli, dtype=np.int64)
+    stats = [MoveStats() for _ in moduli]
+    solved = METHODS[spec.method](moduli, spec, stats)
+    offsets = pair_offsets(spec.neighborhood)
+    out = []
+    for modulus, restored, st in zip(moduli, solved, stats, strict=True):
+        k = anchor_k(
+            (restored - modulus) // spec.params.period, spec.anchor_fraction, modulus=modulus, bits=spec.params.bits
+        )
+        restored = modulus + spec.params.period * k
+        out.append(
+            (
+                restored,
+                {
+                    "energies": [float(e) for e in st.energies],
+                    "steps": [int(s) for s in st.steps],
+                    "cuts": int(st.cuts),
+                    "energy": float(plane_energy(restored, spec.params, offsets)),
+                },
+            )
+        )
+    seconds = (time.perf_counter() - start) / max(1, len(out))
+    for _, info in out:
+        info["seconds"] = seconds
+    return out
+
+
+def solve_plane(modulus: np.ndarray, spec: SolverSpec) -> tuple[np.ndarray, dict[str, Any]]:
+    """Solve one (H, W) plane (see :func:`solve_group`)."""
+    return solve_group(np.asarray(modulus)[None], spec)[0]
 
 
 def default_workers(problems: int, pixels: int) -> int:
@@ -193,7 +251,7 @@ atexit.register(shutdown_workers)
 
 
 def run_planes(
-    planes: list[np.ndarray], spec: SolverSpec, workers: int | None = None
+    planes: list[np.ndarray], spec: SolverSpec, workers: int | None = None, group: int = 1
 ) -> list[tuple[np.ndarray, dict[str, Any]]]:
     """Solve independent planes, in worker processes when that pays.
 
@@ -201,19 +259,22 @@ def run_planes(
         planes: (H, W) integer-valued arrays.
         spec: the solver.
         workers: number of processes; ``None`` picks :func:`default_workers`; 1 runs in-process.
+        group: planes per task, in order (the channels of an image for the methods in :data:`JOINT_CHANNELS`).
 
     Returns:
         One ``(restored, info)`` per plane, in order.
     """
     if not planes:
         return []
+    group = max(1, int(group))
+    tasks = [np.stack(planes[i : i + group]) for i in range(0, len(planes), group)]
     if workers is None:
-        workers = default_workers(len(planes), sum(int(p.size) for p in planes))
-    workers = max(1, min(int(workers), len(planes)))
+        workers = default_workers(len(tasks), sum(int(p.size) for p in planes))
+    workers = max(1, min(int(workers), len(tasks)))
     if workers == 1:
-        return [solve_plane(plane, spec) for plane in planes]
+        return [r for task in tasks for r in solve_group(task, spec)]
     try:
-        return list(_pool(workers).map(solve_plane, planes, repeat(spec)))
+        return [r for out in _pool(workers).map(solve_group, tasks, repeat(spec)) for r in out]
     except Exception:
         # A broken pool (a worker was killed) is not reused.
         shutdown_workers()
