@@ -29,6 +29,9 @@ def test_run_demo_writes_every_file_and_true_numbers(tmp_path: Path) -> None:
         summary["multi_shot"]["median_relative_error_modulo"] < summary["multi_shot"]["median_relative_error_intensity"]
     )
     assert summary["single_shot"]["exact_k"] == 1.0
+    assert summary["single_shot"]["method"] == "guided"
+    assert summary["single_shot"]["low_confidence_share"] == 0.0  # smooth: every level is determined
+    assert summary["single_shot"]["wrong_k_flagged_low_confidence"] == 1.0  # (nothing wrong to flag)
     for name in summary["files"]:
         assert Path(name).is_file(), name
     written = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -36,6 +39,14 @@ def test_run_demo_writes_every_file_and_true_numbers(tmp_path: Path) -> None:
     assert any("single shot" in line for line in lines)
     comparison = io.read_image(tmp_path / "out" / "comparison.png")
     assert comparison.shape[0] == 3 and comparison.shape[2] == 2 * 96
+
+
+def test_cli_demo_with_the_papers_graph_cut(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    args = ["demo", "--out", str(out), "--scene", str(_scene(tmp_path / "scene.exr")), "--workers", "1"]
+    assert main([*args, "--solver", "fast"]) == 0
+    single = json.loads((out / "summary.json").read_text())["single_shot"]
+    assert single["method"] == "fast" and single["exact_k"] == 1.0
 
 
 def test_cli_demo_reports_a_missing_scene(tmp_path: Path, capsys) -> None:

@@ -274,8 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the whole pipeline on one scene and write the results",
         description=(
             "Simulate 8-bit modulo and intensity captures of an HDR scene (default: the embedded CC0 scene), "
-            "unwrap them from one shot (graph cuts) and from three shots (rollover counting), tone-map, and write "
-            "EXRs, PNGs, comparison.png and summary.json."
+            "unwrap them from one shot (unwrap_single, see --solver) and from three shots (rollover counting), "
+            "tone-map, and write EXRs, PNGs, comparison.png and summary.json."
         ),
         epilog="example: torch-modulo demo --out demo_out",
     )
@@ -286,7 +286,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--ratio", type=_ratio, default=64.0, help="multi-shot neighbouring exposure ratio (default: %(default)s)"
     )
     demo.add_argument(
-        "--workers", type=_positive_int, default=None, help="processes for the graph cuts (default: one per core)"
+        "--workers", type=_positive_int, default=None, help="processes for the single shot (default: one per core)"
+    )
+    demo.add_argument(
+        "--solver",
+        default="guided",
+        choices=("guided", "fast", "paper"),
+        help="single-shot method of unwrap_single (default: %(default)s; fast and paper: the paper's graph cut)",
     )
 
     simulate = commands.add_parser(
@@ -359,7 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
             "with a frames.json manifest as `torch-modulo simulate` or torch_modulo.sensors.write_frames write "
             "it, becomes OUT/<stack>.exr by rollover counting (unwrap_multi; stacks of a conventional sensor, "
             "kind 'intensity', are merged with merge_intensity instead). With --single (paper Eqs. 3-5): every "
-            "modulus image in IN (.exr .png .tif .pfm) is unwrapped alone by graph cuts (unwrap_single) and "
+            "modulus image in IN (.exr .png .tif .pfm) is unwrapped alone (unwrap_single, see --solver) and "
             "becomes OUT/<image>.exr, the restored counts divided by the frame's exposure. Output values are "
             "radiance in counts per unit exposure; the metadata records the source, bit depth and exposures."
         ),
@@ -368,7 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_folder_options(unwrap, "folder of frame stacks, or of modulus images with --single", "folder for the EXRs")
     unwrap.add_argument(
-        "--single", action="store_true", help="IN holds single modulus images: unwrap each one alone (graph cuts)"
+        "--single", action="store_true", help="IN holds single modulus images: unwrap each one alone (unwrap_single)"
     )
     unwrap.add_argument(
         "--bits",
@@ -386,8 +392,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--solver",
         default=None,
         metavar="METHOD",
-        help="with --single: the graph-cut method of unwrap_single, paper (Eqs. 3-5 from k = 0, slow) "
-        "or fast (same energy, cheaper schedule) (default: unwrap_single's default)",
+        help="with --single: the method of unwrap_single: guided (path following, channels together; the "
+        "default), fast (the paper's graph cut on a cheaper schedule) or paper (Eqs. 3-5 from k = 0, slow)",
     )
     unwrap.add_argument(
         "--method",
@@ -740,7 +746,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from torch_modulo.demo import run_demo
 
         try:
-            run_demo(args.out, args.scene, bits=args.bits, ratio=args.ratio, workers=args.workers)
+            run_demo(args.out, args.scene, bits=args.bits, ratio=args.ratio, workers=args.workers, method=args.solver)
         except (OSError, ValueError, TypeError) as error:
             print(f"torch-modulo demo: error: {error}", file=sys.stderr)
             return 1

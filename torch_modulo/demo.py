@@ -4,7 +4,8 @@
 
 1. Scale the radiance so that the 99.9th percentile of luminance reads 4095 counts at exposure 1 (a 12-bit scene,
    as in the paper's single-shot experiments), and capture it with an 8-bit modulo and an 8-bit intensity sensor.
-2. Single shot: unwrap the one modulus image by graph cuts (Eqs. 3-5).
+2. Single shot: unwrap the one modulus image (Eqs. 3-5; by default with ``unwrap_single``'s default method,
+   ``"guided"``; ``method="fast"`` or ``"paper"`` for the paper's graph cut).
 3. Multi shot: three modulo captures (neighbouring ratio 64, the shortest without rollover), unwrapped by rollover
    counting (Eqs. 6-7), against the conventional merge of three clipped intensity captures with the same exposures.
 4. Tone-map everything with Larson et al.'s histogram adjustment (sRGB-encoded) and write EXRs, PNGs, one
@@ -28,13 +29,16 @@ from torch_modulo.assets import default_scene_path
 from torch_modulo.capture import capture_intensity, capture_modulo
 from torch_modulo.metrics import exact_k_map, exact_k_share, psnr
 from torch_modulo.multishot import merge_intensity, unwrap_multi
-from torch_modulo.singleshot import unwrap_single
+from torch_modulo.singleshot import unwrap_confidence, unwrap_single
 from torch_modulo.tonemap import REC709_LUMA, tonemap_histogram
 
 __all__ = ["run_demo"]
 
 #: Peak of the simulated 12-bit scene in counts at exposure 1.
 SCENE_PEAK = 4095.0
+
+#: Single-shot values with a confidence (:func:`~torch_modulo.unwrap_confidence`) below this are flagged as guessed.
+LOW_CONFIDENCE = 0.25
 
 
 def _relative_error(estimate: torch.Tensor, truth: torch.Tensor) -> float:
@@ -69,6 +73,7 @@ def run_demo(
     bits: int = 8,
     ratio: float = 64.0,
     workers: int | None = None,
+    method: str = "guided",
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Run the demo and return its summary (also written to ``out_dir/summary.json``).
@@ -78,7 +83,8 @@ def run_demo(
         scene: an HDR file (EXR/HDR); default the embedded CC0 scene.
         bits: the simulated sensors' bit depth.
         ratio: neighbouring exposure ratio of the multi-shot captures (at most ``2**bits - 1``).
-        workers: worker processes for the single-shot graph cuts (default: one per core).
+        workers: worker processes for the single-shot unwrapping (default: one per core when it pays).
+        method: the :func:`~torch_modulo.unwrap_single` method (``"guided"``, ``"fast"`` or ``"paper"``).
         log: where progress lines go.
 
     Returns:
@@ -99,18 +105,25 @@ def run_demo(
     modulus = capture_modulo(radiance, 1.0, bits)
     intensity = capture_intensity(radiance, 1.0, bits)
     start = time.perf_counter()
-    restored = unwrap_single(modulus, bits, workers=workers)
+    restored = unwrap_single(modulus, bits, method=method, workers=workers)
     timings["single_shot_s"] = time.perf_counter() - start
+    wrong = ~exact_k_map(restored, truth, bits)  # offsets aligned as in exact_k
+    low = unwrap_confidence(restored, bits) < LOW_CONFIDENCE
     single = {
+        "method": method,
         "exact_k": float(exact_k_share(restored, truth, bits)[0]),
         "psnr_db": float(psnr(restored, truth, peak=float(truth.max()))[0]),
         "saturated_in_intensity_image": float((intensity >= 2**bits - 1).double().mean()),
+        "low_confidence_share": float(low.double().mean()),
+        "wrong_k_flagged_low_confidence": float((wrong & low).sum() / wrong.sum()) if bool(wrong.any()) else 1.0,
         "seconds": timings["single_shot_s"],
     }
     log(
-        f"single shot: exact rollover count on {100 * single['exact_k']:.2f}% of values, "
+        f"single shot ({method}): exact rollover count on {100 * single['exact_k']:.2f}% of values, "
         f"PSNR {single['psnr_db']:.1f} dB, {single['seconds']:.1f} s "
-        f"(the intensity image saturates {100 * single['saturated_in_intensity_image']:.1f}% of values)"
+        f"(the intensity image saturates {100 * single['saturated_in_intensity_image']:.1f}% of values); "
+        f"unwrap_confidence flags {100 * single['low_confidence_share']:.1f}% of values as guessed, holding "
+        f"{100 * single['wrong_k_flagged_low_confidence']:.1f}% of the wrong ones"
     )
 
     # Multi shot: three exposures, the shortest without rollover.
@@ -162,14 +175,20 @@ def run_demo(
         target = out / f"{name}_tonemapped.png"
         io.write_image(target, image[0], dtype="uint8", normalized=True)
         written.append(target)
-    k_error = (~exact_k_map(restored, truth, bits)).any(dim=1, keepdim=True)  # offsets aligned as in exact_k
+    k_error = wrong.any(dim=1, keepdim=True)
+    flagged = low.any(dim=1, keepdim=True)
     panels = [
         ("ground truth (tone-mapped)", display["truth"][0]),
         (f"{bits}-bit intensity camera", display["intensity"][0]),
         (f"{bits}-bit modulo camera", display["modulus"][0]),
         (f"single shot unwrapped: {100 * single['exact_k']:.1f}% exact k", display["single_shot"][0]),
         ("wrong rollover count (white)", k_error[0].expand(3, -1, -1).to(hdr.dtype)),
+        (
+            f"low confidence, k guessed (white): {100 * single['low_confidence_share']:.1f}%",
+            flagged[0].expand(3, -1, -1).to(hdr.dtype),
+        ),
         ("3 modulo captures unwrapped", display["multi_shot"][0]),
+        ("3 intensity captures merged", display["intensity_merge"][0]),
     ]
     grid = torch.from_numpy(_labelled_grid(panels)).permute(2, 0, 1)
     io.write_image(out / "comparison.png", grid, dtype="uint8", normalized=True)
