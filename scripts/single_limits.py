@@ -10,14 +10,20 @@ scores as scripts/bench_single.py), per channel:
   can (told by the truth which 4-neighbour steps are below half a period). No smoothness-based method can do
   better than knowing exactly where the steep steps are, so this bounds every method that unwraps by
   integrating small differences (the paper's energy, phase unwrapping, the priors of docs/singleshot.md).
-- ``method``: exact-k and PSNR of a method (``--method``: ``quality`` path following by default, ``fast``,
-  ``paper`` or ``skimage``), and how well :func:`torch_modulo.singleshot.unwrap_confidence` on its result finds
-  its errors: the ROC AUC of ``1 - confidence`` for "k is wrong" (after the global offset is aligned), and the
-  share of the wrong pixels among the 10% least confident.
+- ``method``: exact-k and PSNR of a method (``--method``: ``guided``, the default method of unwrap_single, by
+  default; ``quality`` (path following per channel), ``fast``, ``paper`` or ``skimage``), and how well
+  :func:`torch_modulo.singleshot.unwrap_confidence` on its result finds its errors: the ROC AUC of
+  ``1 - confidence`` for "k is wrong" (after the global offset is aligned), and the share of the wrong pixels
+  among the 10% least confident.
+- with ``--priors``: for truncated-linear pair potentials ``min(|I_i - I_j|, T)`` (8-neighbourhood; T = 8, 32
+  and 128 counts: robust priors that stop charging for steps beyond T), the energy of the truth divided by the
+  energy of the method's result. Above 1 means that the prior prefers the wrong result to the truth, so no
+  optimiser of that prior can recover the scene.
 
 Examples:
-    python scripts/single_limits.py                      # both protocols, quality-guided path following
+    python scripts/single_limits.py                      # both protocols, method="guided"
     python scripts/single_limits.py --protocols A --method fast --max-scenes 5
+    python scripts/single_limits.py --protocols A --priors
 """
 
 from __future__ import annotations
@@ -102,6 +108,19 @@ def oracle_k(truth: np.ndarray, seed: int = 0) -> np.ndarray:
     return k - k.min()
 
 
+TRUNCATIONS = (8, 32, 128)
+
+
+def truncated_energy(image: np.ndarray, cap: float) -> float:
+    """``sum min(|I_i - I_j|, cap)`` over the 8-neighbour pairs of every channel of (C, H, W) counts."""
+    total = 0.0
+    for plane in image:
+        for off in pair_offsets(8):
+            first, second = pair_slices(*plane.shape, off)
+            total += float(np.minimum(np.abs(plane[first] - plane[second]), cap).sum())
+    return total
+
+
 def restore(method: str, modulus: np.ndarray) -> tuple[np.ndarray, float]:
     """(C, H, W) restored counts and seconds."""
     if method == "quality":
@@ -139,9 +158,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--protocols", nargs="+", default=["A", "B"], choices=["A", "B"])
-    parser.add_argument("--method", default="quality", help="quality (default), fast, paper or skimage")
+    parser.add_argument("--method", default="guided", help="guided (default), quality, fast, paper or skimage")
     parser.add_argument("--scale", type=int, default=512)
     parser.add_argument("--max-scenes", type=int, default=0)
+    parser.add_argument("--priors", action="store_true", help="also compare truncated-linear prior energies")
     args = parser.parse_args()
     scenes = protocols.list_scenes(args.data)
     if args.max_scenes:
@@ -173,10 +193,14 @@ def main() -> None:
                 "caught10": caught,
                 "wrong": wrong,
             }
+            if args.priors:
+                for cap in TRUNCATIONS:
+                    row[f"truth_over_found_T{cap}"] = truncated_energy(truth, cap) / truncated_energy(restored, cap)
             rows.append(row)
             print(
                 f"{path.name[:30]:30s} {largest:.3f} | {o_k:.3f} {o_psnr:6.2f} | {m_k:.3f} {m_psnr:6.2f} | "
-                f"{c_auc:.3f} {caught:.2f} {wrong:.3f}",
+                f"{c_auc:.3f} {caught:.2f} {wrong:.3f}"
+                + "".join(f" | T{c} {row[f'truth_over_found_T{c}']:.3f}" for c in TRUNCATIONS if args.priors),
                 flush=True,
             )
 
@@ -200,6 +224,10 @@ def main() -> None:
             "confidence_auc_those": mean("conf_auc", good),
             "errors_in_least_confident_10pct_those": mean("caught10", good),
         }
+        if args.priors:
+            for cap in TRUNCATIONS:
+                key = f"truth_over_found_T{cap}"
+                summary[f"scenes_truth_energy_higher_T{cap}"] = sum(r[key] > 1 for r in rows)
         print(json.dumps(summary))
 
 
