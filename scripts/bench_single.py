@@ -62,6 +62,16 @@ def load(path: Path, scale: int) -> np.ndarray:
     return protocols.load_scene(path, scale).numpy()
 
 
+def select_scenes(data: Path, max_scenes: int = 0) -> list[Path]:
+    """The .exr/.hdr files under ``data`` sorted by path (the first ``max_scenes`` when > 0); exits if none."""
+    scenes = protocols.list_scenes(data)
+    if max_scenes:
+        scenes = scenes[:max_scenes]
+    if not scenes:
+        raise SystemExit(f"no .exr/.hdr scenes under {data}")
+    return scenes
+
+
 def protocol_a(rgb: np.ndarray) -> np.ndarray:
     return protocols.protocol_a(torch.from_numpy(rgb), peak=PEAK).numpy()
 
@@ -241,11 +251,7 @@ def main(argv: list[str] | None = None) -> None:
         run_memory(args.methods, args.memory_sizes)
         return
 
-    scenes = protocols.list_scenes(args.data)
-    if args.max_scenes:
-        scenes = scenes[: args.max_scenes]
-    if not scenes:
-        raise SystemExit(f"no scenes under {args.data}")
+    scenes = select_scenes(args.data, args.max_scenes)
     with_energy = args.energy or "paper" in args.methods
     summary: dict = {}
     for proto in args.protocols:

@@ -33,9 +33,8 @@ from scipy.ndimage import uniform_filter
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_single import DATA, PERIOD, load, protocol_a, scores  # noqa: E402
+from bench_single import DATA, PERIOD, load, protocol_a, scores, select_scenes  # noqa: E402
 
-from torch_modulo import protocols  # noqa: E402
 from torch_modulo.singleshot.graphcut import _PairTerms  # noqa: E402
 from torch_modulo.singleshot.init import quality_guided_k, wrapped_difference  # noqa: E402
 
@@ -224,19 +223,31 @@ class PairCosts:
         return k, energy
 
 
+def score(modulus: np.ndarray, k: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """exact-k and PSNR of ``modulus + k 2**bits`` (offsets aligned, as in bench_single.py)."""
+    restored = (modulus + PERIOD * (k - k.min())).astype(np.float64)
+    return scores(restored[None], truth[None].astype(np.float64))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--epochs", type=int, default=300)
     ap.add_argument("--cut-scenes", type=int, default=10, help="run the graph-cut variant on this many scenes")
+    ap.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (a quick check)")
+    ap.add_argument("--model", type=Path, default=None, help="load the fitted model from here if it exists, else save")
     args = ap.parse_args()
-    scenes = protocols.list_scenes(args.data)
-    if not scenes:
-        sys.exit(f"no .exr/.hdr scenes under {args.data}")
+    scenes = select_scenes(args.data, args.max_scenes)
     truths = [protocol_a(load(p, 512))[0].astype(np.int64) for p in scenes]
     tune = [t for i, t in enumerate(truths) if i % 2 == 0]
     start = time.perf_counter()
-    model = fit(tune, args.epochs)
+    if args.model is not None and args.model.exists():
+        model = torch.nn.Sequential(torch.nn.Linear(N_FEATURES, 16), torch.nn.Tanh(), torch.nn.Linear(16, 1))
+        model.load_state_dict(torch.load(args.model))
+    else:
+        model = fit(tune, args.epochs)
+        if args.model is not None:
+            torch.save(model.state_dict(), args.model)
     split = period_split(tune)
     print(f"fitted in {time.perf_counter() - start:.0f} s")
     rows = []
@@ -247,11 +258,11 @@ def main() -> None:
         k_qg = quality_guided_k(modulus.astype(np.int64), 8)
         row = {"scene": path.name, "split": "tune" if index % 2 == 0 else "held"}
         for name, k in (("quality", k_qg), ("tree", k_tree)):
-            row[name] = scores((modulus + PERIOD * (k - k.min()))[None], truth[None])
+            row[name] = score(modulus, k, truth)
         if index < args.cut_scenes:
             costs = PairCosts(modulus, probs, split)
             k_cut, e_cut = costs.minimise(k_tree)
-            row["cut"] = scores((modulus + PERIOD * (k_cut - k_cut.min()))[None], truth[None])
+            row["cut"] = score(modulus, k_cut, truth)
             row["cut_energy_found"], row["cut_energy_truth"] = e_cut, costs.energy(truth // PERIOD)
         rows.append(row)
         cut = f" | cut {row['cut'][0]:.3f} {row['cut'][1]:6.2f}" if "cut" in row else ""

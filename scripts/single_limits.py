@@ -39,9 +39,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_single import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores  # noqa: E402
+from bench_single import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores, select_scenes  # noqa: E402
 
-from torch_modulo import protocols  # noqa: E402
 from torch_modulo.singleshot import unwrap_confidence  # noqa: E402
 from torch_modulo.singleshot.energy import pair_offsets, pair_slices  # noqa: E402
 from torch_modulo.singleshot.init import quality_guided_k, wrapped_difference  # noqa: E402
@@ -163,11 +162,7 @@ def main() -> None:
     parser.add_argument("--max-scenes", type=int, default=0)
     parser.add_argument("--priors", action="store_true", help="also compare truncated-linear prior energies")
     args = parser.parse_args()
-    scenes = protocols.list_scenes(args.data)
-    if args.max_scenes:
-        scenes = scenes[: args.max_scenes]
-    if not scenes:
-        sys.exit(f"no .exr/.hdr scenes under {args.data}")
+    scenes = select_scenes(args.data, args.max_scenes)
     for proto in args.protocols:
         rows = []
         print(f"protocol {proto}: scene, largest smooth region, oracle exact-k / PSNR, {args.method} exact-k / PSNR,")

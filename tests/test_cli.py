@@ -234,6 +234,27 @@ class TestUnwrap:
         )
         assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["nobits.png", "ramp.png"]
 
+    def test_single_shot_confidence(self, tmp_path: Path) -> None:
+        from torch_modulo.singleshot import unwrap_confidence
+
+        (tmp_path / "in").mkdir()
+        counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
+        counts[:, 3:6, 8:12] += 1664  # a block 6.5 periods up: steep steps all round, its level is a guess
+        write_image(tmp_path / "in" / "img.png", torch.remainder(counts, 256), {"bits": 8})
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single") == 0
+        assert not (tmp_path / "out" / "img.confidence.exr").exists()
+        # asking for the map is another option: the image is redone and both files are written
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--confidence") == 0
+        assert _names(_report(tmp_path / "out", "unwrap")["done"]) == ["img.png"]
+        restored = read_image(tmp_path / "out" / "img.exr", dtype=torch.float64)
+        confidence, meta = read_image(tmp_path / "out" / "img.confidence.exr", with_metadata=True)
+        torch.testing.assert_close(confidence.double(), unwrap_confidence(restored, 8).float().double())
+        assert float(confidence[:, 3:6, 8:12].max()) < 0.35 < 0.5 < float(confidence[:, 8:, :].min())
+        assert meta["unit"] == "confidence in [0, 1]"
+        (tmp_path / "out" / "img.confidence.exr").unlink()  # a missing output makes the task incomplete
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--confidence") == 0
+        assert (tmp_path / "out" / "img.confidence.exr").exists()
+
 
 # ---------------------------------------------------------------------------------------------------- tonemap
 
@@ -487,6 +508,7 @@ BAD_OPTIONS = [
     (["unwrap", "{in}", "{out}", "--exposure", "2"], "--exposure applies to --single only"),
     (["unwrap", "{in}", "{out}", "--method", "magic"], "invalid choice: 'magic'"),
     (["unwrap", "{in}", "{out}", "--solver", "fast"], "--solver applies to --single only"),
+    (["unwrap", "{in}", "{out}", "--confidence"], "--confidence applies to --single only"),
     (["unwrap", "{in}", "{out}", "--single", "--solver", "magic"], "--solver must be one of"),
     (["unwrap", "{in}"], "the following arguments are required: OUT"),
 ]

@@ -389,6 +389,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --single: the frames' exposure (default: from the metadata, else 1)",
     )
     unwrap.add_argument(
+        "--confidence",
+        action="store_true",
+        help="with --single: also write OUT/<image>.confidence.exr, unwrap_confidence's map (1: the rollover count "
+        "is determined by the image; 0: it was guessed, take a second exposure there)",
+    )
+    unwrap.add_argument(
         "--solver",
         default=None,
         metavar="METHOD",
@@ -522,7 +528,7 @@ def unwrap_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
             if bits is None:
                 raise ValueError(f"no bit depth in the metadata of {task.source}: pass --bits")
         exposure = options["exposure"] or meta.get("exposure") or 1.0
-        from torch_modulo.singleshot import unwrap_single
+        from torch_modulo.singleshot import unwrap_confidence, unwrap_single
 
         solver = {"method": options["solver"]} if options["solver"] is not None else {}
         counts = unwrap_single(image.unsqueeze(0), int(bits), workers=options["_solver_workers"], **solver)[0]
@@ -535,6 +541,9 @@ def unwrap_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
             "solver": options["solver"] or "default",
             "unit": "counts per unit exposure",
         }
+        if options.get("confidence"):
+            confidence = unwrap_confidence(counts.double(), int(bits))
+            write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})
     else:
         from torch_modulo.multishot import merge_intensity, unwrap_multi
         from torch_modulo.sensors import FileSensor
@@ -617,7 +626,10 @@ def _plan(args: argparse.Namespace, source: Path, out: Path) -> tuple[list[Any],
             target = out / (rel.with_suffix(".exr") if args.single else rel.with_name(rel.name + ".exr"))
         else:
             target = out / rel.with_suffix(".png")
-        tasks.append(Task(name, str(path), (str(target),)))
+        targets = [target]
+        if args.command == "unwrap" and args.single and args.confidence:
+            targets.append(target.with_name(f"{target.stem}.confidence.exr"))
+        tasks.append(Task(name, str(path), tuple(str(t) for t in targets)))
     return tasks, wanted
 
 
@@ -650,6 +662,8 @@ def _options(args: argparse.Namespace, sub: argparse.ArgumentParser, workers: in
         # Graph cuts inside each job use processes of their own only when the batch itself runs one at a time.
         if args.solver is not None and not args.single:
             sub.error("--solver applies to --single only")
+        if args.confidence and not args.single:
+            sub.error("--confidence applies to --single only")
         if args.single and args.solver is not None:
             from torch_modulo.singleshot import METHODS
 
@@ -661,6 +675,7 @@ def _options(args: argparse.Namespace, sub: argparse.ArgumentParser, workers: in
             "exposure": args.exposure,
             "method": args.method,
             "solver": args.solver,
+            "confidence": args.confidence,
             "_solver_workers": None if workers == 1 else 1,
         }
     params = dict(args.param)

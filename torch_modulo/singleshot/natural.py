@@ -27,7 +27,7 @@ replaces the model, keeping the move-making idea of Sec. 4.2:
 The faithful solver of the paper stays in :mod:`torch_modulo.singleshot.graphcut`; ``potential="linear"`` here
 runs the paper's Eq. 5 through this optimiser for comparison.
 
-Status (measured, docs/singleshot_research.md): on the dev scenes every model tried here (Student-t and Laplace
+Status (measured, docs/singleshot.md): on the dev scenes every model tried here (Student-t and Laplace
 log-domain potentials with and without the Jacobian, colour coupling, the paper's Eq. 5) gives the solution the
 optimiser finds a LOWER energy than the truth, and the refinement loses exact-k against its own initialisation.
 The default is therefore the initialisation alone (quality-guided ``k`` with the saturation bound, ``links=()``);
@@ -70,7 +70,7 @@ class NaturalOptions:
         neighborhood: 4 or 8.
         links: region links in counts, coarse to fine, for the model-based refinement; 0 means the pixel grid.
             Empty (the default) skips the refinement: on the dev scenes every refinement tried lowered the
-            model energy below the truth's and lost exact-k (docs/singleshot_research.md).
+            model energy below the truth's and lost exact-k (docs/singleshot.md).
         max_step: the largest move step ``t`` in periods.
         max_count: the sensor's largest count (saturation) or ``None`` for unbounded.
         rounds: colour rounds (each solves every channel once).
