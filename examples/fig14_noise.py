@@ -3,6 +3,8 @@
     python examples/fig14_noise.py                 # writes examples/out/fig14_noise.png
     python examples/fig14_noise.py --quick --out /tmp/figs
     python examples/fig14_noise.py --no-single     # multi-shot only (no graph cut)
+    python examples/fig14_noise.py --method guided --out /tmp/figs  # single shot by the default method
+    python examples/fig14_noise.py --method guided:denoise=0.7 --out /tmp/figs
 
 Paper (Sec. 7, Fig. 14, real data): "As noise is more obvious in the least significant bits, it will degrade
 the recovery performance. [...] a longer exposure of 8000 ms modulo image is intentionally captured [...] The number
@@ -16,7 +18,8 @@ counts rms (``NoiseModel(read_noise=sigma, shot_noise=False)``, one electron per
 last level adds photon shot noise (the default ``NoiseModel()``: Poisson with one electron per count, so about 62
 counts rms at 3840 counts, plus 1 e- read noise). Recoveries:
 
-- single shot (:func:`torch_modulo.unwrap_single`, the paper's graph cut) of the exposure-1 frame;
+- single shot (:func:`torch_modulo.unwrap_single`, the paper's graph cut, ``method="fast"``; ``--method`` picks
+  another) of the exposure-1 frame;
 - two captures at ratio 16 (exposures 1/16 and 1) and at ratio 256 (1/256 and 1, the largest ratio an 8-bit sensor
   allows) with :func:`torch_modulo.unwrap_multi` (the robust rule).
 
@@ -70,7 +73,9 @@ def capture(radiance: torch.Tensor, exposures: list[float], noise: NoiseModel) -
     return moduli, reference
 
 
-def run_level(maps: dict[str, torch.Tensor], level: float | str, single: bool) -> dict[str, object]:
+def run_level(
+    maps: dict[str, torch.Tensor], level: float | str, single: bool, method: str = "fast"
+) -> dict[str, object]:
     noise = noise_model(level)
     out: dict[str, object] = {}
     if single:
@@ -78,7 +83,9 @@ def run_level(maps: dict[str, torch.Tensor], level: float | str, single: bool) -
 
         for label, key in ((SINGLE_SMOOTH, "smooth"), (SINGLE_ROOM, "room")):
             moduli, reference = capture(maps[key], [1.0], noise)
-            restored = unwrap_single(moduli[:, 0], bits=BITS, method="fast", workers=1)
+            name, _, option = method.partition(":")  # e.g. "guided:denoise=0.7"
+            options = {k: float(v) for k, v in (item.split("=") for item in option.split(",") if item)}
+            restored = unwrap_single(moduli[:, 0], bits=BITS, method=name, workers=1, **options)
             out[label] = float(exact_k_share(restored, reference[:, 0], BITS)[0])
             if key == "smooth":
                 ok = exact_k_map(restored, reference[:, 0], BITS)
@@ -93,11 +100,17 @@ def run_level(maps: dict[str, torch.Tensor], level: float | str, single: bool) -
 def main(argv: list[str] | None = None) -> dict[str, object]:
     p = parser(__doc__.split("\n\n")[0])
     p.add_argument("--no-single", action="store_true", help="skip single-shot unwrapping (the graph cut)")
+    p.add_argument(
+        "--method",
+        default="fast",
+        help="unwrap_single method for the single-shot columns, with numeric options as in guided:denoise=0.7 "
+        "(default: fast, the graph cut)",
+    )
     args = p.parse_args(argv)
     maps = scenes(args.quick)
     levels: list[float | str] = [*(QUICK_SIGMAS if args.quick else SIGMAS), SHOT]
     single = not args.no_single
-    results = {level: run_level(maps, level, single) for level in levels}
+    results = {level: run_level(maps, level, single, args.method) for level in levels}
     methods = ([SINGLE_SMOOTH, SINGLE_ROOM] if single else []) + list(MULTI)
 
     print(

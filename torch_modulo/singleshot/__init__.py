@@ -116,6 +116,13 @@ def _check_options(method: str, options: dict[str, Any]) -> tuple[tuple[str, Any
     checked = dict(options)
     if "init" in checked and checked["init"] not in ("auto", "zeros", "quality"):
         raise ValueError(f"init must be 'auto', 'zeros' or 'quality'; got {checked['init']!r}")
+    if "denoise" in checked:
+        value = checked["denoise"]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise TypeError(f"denoise must be a number of pixels; got {value!r}")
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"denoise must be finite and >= 0; got {value}")
+        checked["denoise"] = float(value)
     if "rel_tol" in checked:
         value = checked["rel_tol"]
         if isinstance(value, bool) or not isinstance(value, int | float):
@@ -258,7 +265,8 @@ def unwrap_single(
             ``"auto"``),
             ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase), ``contract``
             (default False). ``"guided"``: ``colour`` (default True: the channels of an image share one tree;
-            False: each channel alone).
+            False: each channel alone), ``denoise`` (default 0: the standard deviation in pixels of a Gaussian
+            applied to the wrapped image's phasor first; about 0.7 for frames with noise in the low bits).
 
     Returns:
         The restored counts ``I_m + k 2**bits``: same shape, dtype and device as ``modulus``; with

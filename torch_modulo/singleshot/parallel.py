@@ -123,13 +123,15 @@ def _solve_fast(modulus: np.ndarray, spec: SolverSpec, stats: MoveStats) -> np.n
 
 def _solve_guided(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
     """Reliability-guided path following (Herraez et al. 2002), no graph cut; with ``colour`` the channels of an
-    image share one tree whose reliabilities sum the second differences of all channels."""
+    image share one tree whose reliabilities sum the second differences of all channels; ``denoise`` smooths the
+    wrapped images first (:func:`~torch_modulo.singleshot.init.smooth_wrapped`)."""
     p = spec.params
     start = time.perf_counter()
+    denoise = float(spec.option("denoise"))
     if spec.option("colour"):
-        k = quality_guided_colour_k(moduli, p.bits)
+        k = quality_guided_colour_k(moduli, p.bits, denoise)
     else:
-        k = np.stack([quality_guided_k(m, p.bits) for m in moduli])
+        k = np.stack([quality_guided_colour_k(m[None], p.bits, denoise)[0] for m in moduli])
     restored = moduli + p.period * k
     for plane, st in zip(restored, stats, strict=True):
         st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
@@ -164,7 +166,7 @@ JOINT_CHANNELS: frozenset[str] = frozenset({"guided"})
 METHOD_OPTIONS: dict[str, dict[str, Any]] = {
     "paper": {},
     "fast": {"init": "auto", "rel_tol": 3e-4, "tile": 64, "contract": False},
-    "guided": {"colour": True},
+    "guided": {"colour": True, "denoise": 0.0},
 }
 
 
