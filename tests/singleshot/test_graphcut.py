@@ -202,6 +202,17 @@ class TestAnchor:
         k, modulus = self._scene(200)
         assert anchor_k(k, modulus=modulus, bits=8, large_fraction=0.01)[30, 30] == 3
 
+    def test_falls_back_to_the_lowest_level_with_a_region(self) -> None:
+        # Every region is small and steep-bordered (4 x 4 blocks on 5 levels, a 32-pixel region on the top level):
+        # no level passes the tests, and the lowest level with a 0.1% region anchors, as without the modulus,
+        # rather than the level of the largest region (which would clip most of the image to k = 0).
+        y, x = np.mgrid[0:64, 0:64]
+        k = ((y // 4) + (x // 4)) % 5
+        k[0:4, 0:8] = 4
+        modulus = np.full(k.shape, 100)
+        out = anchor_k(k, modulus=modulus, bits=8)
+        assert np.array_equal(out, anchor_k(k)) and np.array_equal(out, k - k.min())
+
     def test_modulus_needs_bits(self) -> None:
         with pytest.raises(ValueError, match="bits"):
             anchor_k(np.zeros((3, 3), dtype=np.int64), modulus=np.zeros((3, 3)))

@@ -167,6 +167,11 @@ class TestUnwrapSingle:
         module = SingleShotUnwrap(bits=8, method="fast", init="quality")
         assert torch.equal(module(modulus), unwrap_single(modulus, method="fast", init="quality"))
         assert torch.equal(SingleShotUnwrap()(modulus), unwrap_single(modulus))
+        assert SingleShotUnwrap().method == "guided"  # the module and the function share their default
+        assert torch.equal(SingleShotUnwrap(colour=False)(modulus), unwrap_single(modulus, colour=False))
+        assert torch.equal(
+            unwrap_single(modulus, denoise=np.float32(0.7), colour=np.bool_(True)), unwrap_single(modulus, denoise=0.7)
+        )
 
     def test_methods_registry(self) -> None:
         assert {"paper", "fast", "guided"} <= set(METHODS)

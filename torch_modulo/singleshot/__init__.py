@@ -8,9 +8,10 @@ Methods (``method=``; new methods register in :data:`METHODS`):
 
 - ``"guided"`` (default): reliability-guided path following (Herraez et al. 2002) without a graph cut, the
   channels of a colour image on one shared tree (a step that is steep in one channel is avoided in all). The
-  best configuration measured on the dev scenes (docs/singleshot.md): against ``"fast"``, exact-k 90.6% vs
-  87.8% and 26.2 vs 25.7 dB under protocol B (RGB), 75.9% vs 76.5% and 20.6 vs 21.0 dB under protocol A
-  (luminance), at 0.35-0.8 instead of 18-23 s per megapixel and channel.
+  best configuration measured on the dev scenes (docs/singleshot.md): against ``"fast"``, exact-k 91.05% vs
+  87.97% and 26.58 vs 25.75 dB under protocol B (RGB), 76.46% vs 76.62% and 21.10 vs 21.04 dB under protocol A
+  (luminance), at 0.4-0.8 instead of 25-34 s per megapixel and channel. Under strong noise in the low bits pass
+  ``denoise=0.7`` (or use ``"fast"``).
 - ``"fast"``: the paper's energy and moves on a cheaper schedule: start from path following when the wrapped
   image is smooth (no residues), else from ``k = 0``; global moves until one gains less than ``rel_tol`` of the
   energy; then local moves in tiles. On the dev scenes it reaches the faithful solver's energy on average
@@ -118,7 +119,7 @@ def _check_options(method: str, options: dict[str, Any]) -> tuple[tuple[str, Any
         raise ValueError(f"init must be 'auto', 'zeros' or 'quality'; got {checked['init']!r}")
     if "denoise" in checked:
         value = checked["denoise"]
-        if isinstance(value, bool) or not isinstance(value, int | float):
+        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
             raise TypeError(f"denoise must be a number of pixels; got {value!r}")
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"denoise must be finite and >= 0; got {value}")
@@ -135,8 +136,10 @@ def _check_options(method: str, options: dict[str, Any]) -> tuple[tuple[str, Any
         if checked["tile"] == 1:
             raise ValueError("tile must be 0 (no local moves) or >= 2; got 1")
     for flag in ("contract", "colour"):
-        if flag in checked and not isinstance(checked[flag], bool):
-            raise TypeError(f"{flag} must be a bool; got {checked[flag]!r}")
+        if flag in checked:
+            if not isinstance(checked[flag], bool | np.bool_):
+                raise TypeError(f"{flag} must be a bool; got {checked[flag]!r}")
+            checked[flag] = bool(checked[flag])
     return tuple(sorted(checked.items()))
 
 
@@ -319,7 +322,7 @@ class SingleShotUnwrap(nn.Module):
         self,
         bits: int = 8,
         *,
-        method: str = "fast",
+        method: str = "guided",
         neighborhood: int = 8,
         a1: float = 0.1,
         a2: float = 1e-5,

@@ -709,7 +709,9 @@ def anchor_k(
     step by less than half a period in the restored image ``modulus + k 2**bits``. Anchoring on the minimum
     instead would let a handful of noisy pixels one level low shift the whole image (../shared/DESIGN.md). The
     size and border tests keep bright regions that a solver put too low from anchoring the image, while the
-    true darkest region, a few percent of a smooth ramp say, still does. On the dev scenes (39 scenes, 156
+    true darkest region, a few percent of a smooth ramp say, still does. If no level passes, the lowest level
+    with a region of ``min_fraction`` anchors (the rule without ``modulus``); if none has one, the level of the
+    largest region does. On the dev scenes (39 scenes, 156
     channels under protocols A and B) the bulk of "guided"'s results landed at its true level on 130 channels
     (54 with the 0.1% rule alone), and the truth itself on 154 (2 true darkest regions are small and
     steep-edged). Pixels left below 0 would mean negative counts, which a sensor cannot read, so they are set to 0.
@@ -737,6 +739,7 @@ def anchor_k(
     need = max(1, int(np.ceil(min_fraction * k.size)))
     large = max(need, int(np.ceil(large_fraction * k.size)))
     best_size, best_level = -1, int(k.min())
+    first_large = None  # the lowest level with a region of ``need`` pixels: the fallback when no level passes
     for level in np.unique(k):
         lab, n = ndimage.label(k == level)
         if not n:
@@ -749,9 +752,11 @@ def anchor_k(
             best_size, best_level = size, int(level)
         if size < need:
             continue
+        if first_large is None:
+            first_large = int(level)
         if restored is None or size >= large or _smooth_border(lab == region, restored, 1 << (bits - 1)):
             return np.maximum(k - level, 0)
-    return np.maximum(k - best_level, 0)
+    return np.maximum(k - (first_large if first_large is not None else best_level), 0)
 
 
 def _smooth_border(region: np.ndarray, restored: np.ndarray, half: int) -> bool:
