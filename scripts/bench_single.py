@@ -11,7 +11,8 @@ and, where ``paper`` ran, the energy reached relative to the faithful solver (pl
 - Protocol B (UnModNet style): RGB min-max scaled to [0, 1], exposure chosen by bisection so that 20% of the
   pixels roll over in at least one channel, ``I = floor(clip(x e, 0, 1) * 4095)`` per channel.
 
-Methods: ``paper`` and ``fast`` (torch_modulo.unwrap_single; options as ``fast:init=quality,tile=0``),
+Methods: ``guided``, ``paper`` and ``fast`` (torch_modulo.unwrap_single; options as ``fast:init=quality,tile=0``
+or ``guided:denoise=0.7``),
 ``skimage`` (scikit-image's ``unwrap_phase``, Herraez et al. 2002, on ``I_m 2 pi / 256``, the baseline of
 BENCHMARKS.md). Every scene is first downsampled by whole-pixel area averaging (smallest integer factor) until
 its longer side is at most ``--scale`` (512).
@@ -21,7 +22,7 @@ its longer side is at most ``--scale`` (512).
 imports and a warm-up).
 
 Examples:
-    python scripts/bench_single.py --max-scenes 4 --methods fast skimage
+    python scripts/bench_single.py --max-scenes 4 --methods guided fast skimage
     python scripts/bench_single.py --protocols A B --methods paper fast skimage > /tmp/bench_single.txt
     python scripts/bench_single.py --memory --methods paper fast
 
@@ -233,7 +234,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--protocols", nargs="+", default=["A", "B"], choices=["A", "B"])
-    ap.add_argument("--methods", nargs="+", default=["fast", "paper", "skimage"])
+    ap.add_argument("--methods", nargs="+", default=["guided", "fast", "paper", "skimage"])
     ap.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0: all)")
     ap.add_argument("--scale", type=int, default=512, help="longest side after downsampling")
     ap.add_argument("--workers", type=int, default=1)
