@@ -35,8 +35,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_single import DATA, PERIOD, load, protocol_a, scores, select_scenes  # noqa: E402
 
+from torch_modulo.singleshot.energy import pair_indices  # noqa: E402
 from torch_modulo.singleshot.graphcut import _PairTerms  # noqa: E402
-from torch_modulo.singleshot.init import quality_guided_k, wrapped_difference  # noqa: E402
+from torch_modulo.singleshot.init import integrate_wrapped, quality_guided_k, spanning_tree, wrapped_difference  # noqa: E402
 
 HALF = PERIOD // 2
 N_FEATURES = 18
@@ -126,33 +127,16 @@ def steep_probability(model: torch.nn.Module, modulus: np.ndarray) -> tuple[np.n
 
 
 def _pairs(shape: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
-    h, w = shape
-    ids = np.arange(h * w).reshape(h, w)
-    return [(ids[:, :-1].ravel(), ids[:, 1:].ravel()), (ids[:-1, :].ravel(), ids[1:, :].ravel())]
+    """Flat indices of the horizontal, then the vertical 4-neighbour pairs."""
+    return [pair_indices(*shape, (0, 1)), pair_indices(*shape, (1, 0))]
 
 
 def tree_k(modulus: np.ndarray, costs: list[np.ndarray]) -> np.ndarray:
     """Path following on the minimum spanning tree of 4-neighbour pairs weighted by ``costs`` (> 0)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-
-    n = modulus.size
     (hi, hj), (vi, vj) = _pairs(modulus.shape)
-    rows, cols = np.concatenate([hi, vi]), np.concatenate([hj, vj])
     weights = np.concatenate([c.ravel() for c in costs])
-    tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(n, n)).tocsr())
-    _, pred = breadth_first_order(tree, 0, directed=False, return_predecessors=True)
-    parent = np.where(pred < 0, np.arange(n), pred)
-    flat = modulus.ravel().astype(np.int64)
-    d = flat - flat[parent]
-    total = (wrapped_difference(d, PERIOD) - d) // PERIOD
-    while True:
-        grand = parent[parent]
-        if np.array_equal(grand, parent):
-            break
-        total = total + total[parent]
-        parent = grand
-    return total.reshape(modulus.shape)
+    parent = spanning_tree(modulus.size, np.concatenate([hi, vi]), np.concatenate([hj, vj]), weights)
+    return integrate_wrapped(modulus.astype(np.int64), parent, PERIOD)
 
 
 def period_split(truths: list[np.ndarray]) -> np.ndarray:

@@ -42,68 +42,35 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_single import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores, select_scenes  # noqa: E402
 
 from torch_modulo.singleshot import unwrap_confidence  # noqa: E402
-from torch_modulo.singleshot.energy import pair_offsets, pair_slices  # noqa: E402
-from torch_modulo.singleshot.init import quality_guided_k, wrapped_difference  # noqa: E402
+from torch_modulo.singleshot.energy import pair_indices, pair_offsets, pair_slices  # noqa: E402
+from torch_modulo.singleshot.graphcut import _components  # noqa: E402
+from torch_modulo.singleshot.init import integrate_wrapped, quality_guided_k, spanning_tree  # noqa: E402
 
 
-def _pair_arrays(shape: tuple[int, int], offsets) -> list[tuple[np.ndarray, np.ndarray, tuple, tuple]]:
-    h, w = shape
-    ids = np.arange(h * w).reshape(h, w)
-    out = []
-    for off in offsets:
-        first, second = pair_slices(h, w, off)
-        out.append((ids[first].ravel(), ids[second].ravel(), first, second))
-    return out
+def _pairs(shape: tuple[int, int], neighborhood: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices of both ends of every neighbour pair."""
+    pairs = [pair_indices(*shape, off) for off in pair_offsets(neighborhood)]
+    return np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs])
 
 
 def largest_smooth_region(truth: np.ndarray) -> float:
     """Share of the pixels in the largest region joined by true steps below half a period (8-neighbourhood)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    n = truth.size
-    rows, cols = [], []
-    for i, j, first, second in _pair_arrays(truth.shape, pair_offsets(8)):
-        smooth = (np.abs(truth[first] - truth[second]) < PERIOD // 2).ravel()
-        rows.append(i[smooth])
-        cols.append(j[smooth])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    _, labels = connected_components(coo_matrix((np.ones(r.size), (r, c)), shape=(n, n)).tocsr(), directed=False)
-    return float(np.bincount(labels).max() / n)
+    i, j = _pairs(truth.shape, 8)
+    flat = truth.ravel()
+    smooth = np.abs(flat[i] - flat[j]) < PERIOD // 2
+    _, labels = _components(truth.size, i[smooth], j[smooth])
+    return float(np.bincount(labels).max() / truth.size)
 
 
 def oracle_k(truth: np.ndarray, seed: int = 0) -> np.ndarray:
     """Path following on a spanning tree of truly smooth 4-neighbour pairs (steep pairs only where unavoidable)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-
-    rng = np.random.default_rng(seed)
-    h, w = truth.shape
-    n = h * w
-    modulus = np.mod(truth, PERIOD).astype(np.int64)
-    rows, cols, weights = [], [], []
-    for i, j, first, second in _pair_arrays(truth.shape, pair_offsets(4)):
-        steep = (np.abs(truth[first] - truth[second]) >= PERIOD // 2).ravel()
-        rows.append(i)
-        cols.append(j)
-        # Ties broken at random so that the tree is not biased to rows or columns.
-        weights.append(np.where(steep, 1000.0, 1.0) + 1e-3 * rng.random(i.size))
-    graph = coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    tree = minimum_spanning_tree(graph.tocsr())
-    _, pred = breadth_first_order(tree, 0, directed=False, return_predecessors=True)
-    parent = np.where(pred < 0, np.arange(n), pred)
-    flat = modulus.ravel()
-    d = flat - flat[parent]
-    step = (wrapped_difference(d, PERIOD) - d) // PERIOD
-    # Sum the steps up to the root by pointer jumping.
-    total = step.copy()
-    while True:
-        grand = parent[parent]
-        if np.array_equal(grand, parent):
-            break
-        total += total[parent]
-        parent = grand
-    k = total.reshape(h, w)
+    i, j = _pairs(truth.shape, 4)
+    flat = truth.ravel()
+    steep = np.abs(flat[i] - flat[j]) >= PERIOD // 2
+    # Ties broken at random so that the tree is not biased to rows or columns.
+    weights = np.where(steep, 1000.0, 1.0) + 1e-3 * np.random.default_rng(seed).random(i.size)
+    parent = spanning_tree(truth.size, i, j, weights)
+    k = integrate_wrapped(np.mod(truth, PERIOD).astype(np.int64), parent, PERIOD)
     return k - k.min()
 
 

@@ -26,32 +26,11 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import check_bits, check_finite, check_floating, check_image_shape, check_tensor
-from torch_modulo.singleshot.energy import pair_offsets, pair_slices
+from torch_modulo.singleshot.energy import pair_indices, pair_offsets
+from torch_modulo.singleshot.graphcut import _components
+from torch_modulo.singleshot.init import path_to_root, spanning_tree
 
 __all__ = ["UnwrapConfidence", "bottleneck_steps", "unwrap_confidence"]
-
-
-def _pairs(image: np.ndarray, offsets: tuple[tuple[int, int], ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Both ends (flat indices) and ``|I_i - I_j|`` of every neighbour pair."""
-    h, w = image.shape
-    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
-    first_ids, second_ids, steps = [], [], []
-    for off in offsets:
-        first, second = pair_slices(h, w, off)
-        first_ids.append(ids[first].ravel())
-        second_ids.append(ids[second].ravel())
-        steps.append(np.abs(image[first] - image[second]).ravel())
-    return np.concatenate(first_ids), np.concatenate(second_ids), np.concatenate(steps)
-
-
-def _reference_region(n: int, i: np.ndarray, j: np.ndarray, joined: np.ndarray) -> np.ndarray:
-    """Boolean mask of the largest region joined by the pairs marked ``joined``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    graph = coo_matrix((np.ones(int(joined.sum()), dtype=np.int8), (i[joined], j[joined])), shape=(n, n))
-    _, labels = connected_components(graph.tocsr(), directed=False)
-    return labels == np.bincount(labels).argmax()
 
 
 def bottleneck_steps(image: np.ndarray, bits: int = 8, neighborhood: int = 8) -> np.ndarray:
@@ -65,31 +44,23 @@ def bottleneck_steps(image: np.ndarray, bits: int = 8, neighborhood: int = 8) ->
     Returns:
         float64 (H, W) bottlenecks, in counts.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-
     image = np.asarray(image, dtype=np.float64)
     h, w = image.shape
     n = h * w
     if n <= 1:
         return np.zeros((h, w))
-    i, j, step = _pairs(image, pair_offsets(neighborhood))
-    root = int(np.argmax(_reference_region(n, i, j, step <= (1 << bits) / 8)))
-    # scipy reads a stored 0 as "no edge": shift every weight by 1 and take it back off below.
-    tree = minimum_spanning_tree(coo_matrix((step + 1.0, (i, j)), shape=(n, n)).tocsr()).tocoo()
-    _, pred = breadth_first_order(tree, root, directed=False, return_predecessors=True)
-    parent = np.where(pred < 0, np.arange(n), pred)
-    # Weight of the tree edge from each node up to its parent (0 at the root).
-    up = np.zeros(n)
-    child = np.where(parent[tree.row] == tree.col, tree.row, tree.col)
-    up[child] = tree.data - 1.0
-    # Largest weight on the path to the root, by pointer jumping (log2 of the tree depth passes).
-    while True:
-        grand = parent[parent]
-        if np.array_equal(grand, parent):
-            return up.reshape(h, w)
-        up = np.maximum(up, up[parent])
-        parent = grand
+    pairs = [pair_indices(h, w, off) for off in pair_offsets(neighborhood)]
+    i = np.concatenate([p[0] for p in pairs])
+    j = np.concatenate([p[1] for p in pairs])
+    flat = image.ravel()
+    step = np.abs(flat[i] - flat[j])
+    joined = step <= (1 << bits) / 8
+    _, labels = _components(n, i[joined], j[joined])
+    root = int(np.argmax(labels == np.bincount(labels).argmax()))  # a pixel of the largest region
+    # scipy reads a stored 0 as "no edge": every weight is shifted by 1 (the tree is the same).
+    parent = spanning_tree(n, i, j, step + 1.0, root)
+    # The step from each pixel up to its parent (0 at the root), then the largest one on each path to the root.
+    return path_to_root(parent, np.abs(flat - flat[parent]), np.maximum).reshape(h, w)
 
 
 def unwrap_confidence(restored: torch.Tensor, bits: int = 8, *, neighborhood: int = 8) -> torch.Tensor:

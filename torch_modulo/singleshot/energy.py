@@ -76,6 +76,13 @@ def pair_slices(height: int, width: int, offset: tuple[int, int]) -> tuple[tuple
     return first, second
 
 
+def pair_indices(height: int, width: int, offset: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices (int64) of both ends of every pair at ``offset``, in the order of :func:`pair_slices`."""
+    ids = np.arange(height * width, dtype=np.int64).reshape(height, width)
+    first, second = pair_slices(height, width, offset)
+    return ids[first].ravel(), ids[second].ravel()
+
+
 @dataclass(frozen=True)
 class EnergyParams:
     """Parameters of the potential ``V`` of Eq. 5 for a ``bits``-bit modulus.

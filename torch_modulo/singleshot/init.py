@@ -16,9 +16,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from torch_modulo.singleshot.energy import pair_slices
+from torch_modulo.singleshot.energy import pair_indices, pair_slices
 
-__all__ = ["quality_guided_colour_k", "quality_guided_k", "residue_density", "smooth_wrapped", "wrapped_difference"]
+__all__ = [
+    "integrate_wrapped",
+    "path_to_root",
+    "quality_guided_colour_k",
+    "quality_guided_k",
+    "residue_density",
+    "smooth_wrapped",
+    "spanning_tree",
+    "wrapped_difference",
+]
 
 
 def wrapped_difference(d: np.ndarray, period: int) -> np.ndarray:
@@ -68,16 +77,33 @@ def _second_difference_quality(modulus: np.ndarray, period: int) -> np.ndarray:
     return np.sqrt(acc)
 
 
-def _integrate_tree(parent: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """Sum ``step`` from every node up to its root by pointer jumping; roots have ``parent[i] == i``."""
+def path_to_root(parent: np.ndarray, values: np.ndarray, combine: np.ufunc = np.add) -> np.ndarray:
+    """Fold ``values`` from every node up to its root by pointer jumping (``log2`` of the tree depth passes).
+
+    ``combine`` is an associative ufunc: ``np.add`` sums the values on the path (integration), ``np.maximum`` takes
+    their largest (a bottleneck). Roots have ``parent[i] == i`` and must hold the neutral value (0).
+    """
     parent = parent.copy()
-    total = step.copy()
+    total = values.copy()
     while True:
         grand = parent[parent]
         if np.array_equal(grand, parent):
             return total
-        total += total[parent]
+        total = combine(total, total[parent])
         parent = grand
+
+
+def spanning_tree(n: int, first: np.ndarray, second: np.ndarray, weights: np.ndarray, root: int = 0) -> np.ndarray:
+    """Parent of every node in the minimum spanning tree of the pairs ``(first, second)``, rooted at ``root``.
+
+    ``weights`` must be > 0 (scipy reads 0 as "no edge"). A node the pairs do not reach is its own parent.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+
+    tree = minimum_spanning_tree(coo_matrix((weights, (first, second)), shape=(n, n)).tocsr())
+    _, pred = breadth_first_order(tree, root, directed=False, return_predecessors=True)
+    return np.where(pred < 0, np.arange(n), pred)
 
 
 def _reliability_tree(difficulty: np.ndarray) -> np.ndarray:
@@ -86,32 +112,25 @@ def _reliability_tree(difficulty: np.ndarray) -> np.ndarray:
     ``difficulty`` is Herraez's ``D`` (lower is more reliable); a pair's weight is ``1 / (R_i + R_j)`` with
     ``R = 1 / (D + 1e-3)``, so the minimum spanning tree joins the most reliable pairs first.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-
     h, w = difficulty.shape
-    n = h * w
     inv_d = 1.0 / (difficulty + 1e-3)
-    ids = np.arange(n, dtype=np.int64).reshape(h, w)
     rows, cols, weights = [], [], []
     for off in ((0, 1), (1, 0)):
+        i, j = pair_indices(h, w, off)
         first, second = pair_slices(h, w, off)
-        rows.append(ids[first].ravel())
-        cols.append(ids[second].ravel())
+        rows.append(i)
+        cols.append(j)
         # Kruskal joins the most reliable pair first: weight = 1 / (R_i + R_j) > 0 (zero means "no edge").
         weights.append((1.0 / (inv_d[first] + inv_d[second])).ravel())
-    graph = coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    tree = minimum_spanning_tree(graph.tocsr())
-    _, pred = breadth_first_order(tree, 0, directed=False, return_predecessors=True)
-    return np.where(pred < 0, np.arange(n), pred)
+    return spanning_tree(h * w, np.concatenate(rows), np.concatenate(cols), np.concatenate(weights))
 
 
-def _integrate_modulus(modulus: np.ndarray, parent: np.ndarray, period: int) -> np.ndarray:
+def integrate_wrapped(modulus: np.ndarray, parent: np.ndarray, period: int) -> np.ndarray:
     """``k`` along the tree: ``I_i - I_parent`` equals the wrapped difference of the modulus (integer or real)."""
     flat = modulus.ravel()
     d = flat - flat[parent]
     step = np.rint((wrapped_difference(d, period) - d) / period).astype(np.int64)
-    return _integrate_tree(parent, step).reshape(modulus.shape)
+    return path_to_root(parent, step).reshape(modulus.shape)
 
 
 def smooth_wrapped(modulus: np.ndarray, period: int, sigma: float) -> np.ndarray:
@@ -168,7 +187,7 @@ def quality_guided_colour_k(moduli: np.ndarray, bits: int, denoise: float = 0.0)
     planes = [smooth_wrapped(m, period, denoise) for m in moduli] if denoise > 0 else list(moduli)
     difficulty = sum(_second_difference_quality(m, period) for m in planes)
     parent = _reliability_tree(difficulty)
-    k = np.stack([_integrate_modulus(m, parent, period) for m in planes])
+    k = np.stack([integrate_wrapped(m, parent, period) for m in planes])
     if denoise > 0:
         estimate = np.stack(planes) + period * k
         k = np.rint((estimate - moduli) / period).astype(np.int64)

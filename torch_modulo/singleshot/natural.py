@@ -46,7 +46,7 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import check_bits, check_finite, check_floating, check_image_shape
-from torch_modulo.singleshot.energy import EnergyParams, _potential_np, pair_offsets, pair_slices
+from torch_modulo.singleshot.energy import EnergyParams, _potential_np, pair_indices, pair_offsets
 
 __all__ = ["NaturalOptions", "NaturalUnwrap", "natural_energy", "unwrap_natural", "unwrap_natural_torch"]
 
@@ -194,17 +194,12 @@ class _Pairs:
     """Flat indices of every unordered neighbour pair of an (H, W) grid."""
 
     def __init__(self, h: int, w: int, neighborhood: int) -> None:
-        ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
-        pi, pj = [], []
-        for off in pair_offsets(neighborhood):
-            first, second = pair_slices(h, w, off)
-            pi.append(ids[first].ravel())
-            pj.append(ids[second].ravel())
-        self.i = np.concatenate(pi) if pi else np.zeros(0, np.int64)
-        self.j = np.concatenate(pj) if pj else np.zeros(0, np.int64)
+        pairs = [pair_indices(h, w, off) for off in pair_offsets(neighborhood)]
+        self.i = np.concatenate([p[0] for p in pairs]) if pairs else np.zeros(0, np.int64)
+        self.j = np.concatenate([p[1] for p in pairs]) if pairs else np.zeros(0, np.int64)
         self.h, self.w = h, w
         # 4-neighbour pairs for region labelling.
-        four = [(ids[f].ravel(), ids[s].ravel()) for f, s in (pair_slices(h, w, o) for o in ((0, 1), (1, 0)))]
+        four = [pair_indices(h, w, off) for off in ((0, 1), (1, 0))]
         self.i4 = np.concatenate([f for f, _ in four])
         self.j4 = np.concatenate([s for _, s in four])
 
