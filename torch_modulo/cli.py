@@ -62,21 +62,23 @@ _NOISE_KEYS = {
 # ------------------------------------------------------------------------------------------ option types
 
 
-def _positive_int(text: str) -> int:
+def _parse(text: str, cast: type[int] | type[float], kind: str) -> Any:
+    """``cast(text)``, or the usage error ``expected <kind>; got '<text>'``."""
     try:
-        value = int(text)
+        return cast(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number; got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected {kind}; got {text!r}") from None
+
+
+def _positive_int(text: str) -> int:
+    value = _parse(text, int, "a whole number")
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a number >= 1; got {value}")
     return value
 
 
 def _ratio(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number; got {text!r}") from None
+    value = _parse(text, float, "a number")
     if not 1.0 < value:
         raise argparse.ArgumentTypeError(f"expected a ratio > 1; got {value}")
     return value
@@ -90,20 +92,14 @@ def _bits(text: str) -> int:
 
 
 def _nonnegative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number; got {text!r}") from None
+    value = _parse(text, int, "a whole number")
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a number >= 0; got {value}")
     return value
 
 
 def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number; got {text!r}") from None
+    value = _parse(text, float, "a number")
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0; got {text!r}")
     return value
