@@ -15,6 +15,9 @@ scores as scripts/bench_single.py), per channel:
   :func:`torch_modulo.singleshot.unwrap_confidence` on its result finds its errors: the ROC AUC of
   ``1 - confidence`` for "k is wrong" (after the global offset is aligned), and the share of the wrong pixels
   among the 10% least confident.
+- channels at their true level: channels whose most common rollover difference from the truth is 0 *without*
+  aligning offsets (what the anchoring of ``k = 0`` decides), for the method's result and for the truth re-anchored
+  by :func:`torch_modulo.singleshot.graphcut.anchor_k` (a perfect solver); in the JSON summary.
 - with ``--priors``: for truncated-linear pair potentials ``min(|I_i - I_j|, T)`` (8-neighbourhood; T = 8, 32
   and 128 counts: robust priors that stop charging for steps beyond T), the energy of the truth divided by the
   energy of the method's result. Above 1 means that the prior prefers the wrong result to the truth, so no
@@ -43,7 +46,7 @@ from bench_single import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol
 
 from torch_modulo.singleshot import unwrap_confidence  # noqa: E402
 from torch_modulo.singleshot.energy import pair_indices, pair_offsets, pair_slices  # noqa: E402
-from torch_modulo.singleshot.graphcut import _components  # noqa: E402
+from torch_modulo.singleshot.graphcut import _components, anchor_k  # noqa: E402
 from torch_modulo.singleshot.init import integrate_wrapped, quality_guided_k, spanning_tree  # noqa: E402
 
 
@@ -120,6 +123,22 @@ def confidence_scores(restored: np.ndarray, truth: np.ndarray) -> tuple[float, f
     return auc(-conf, wrong), caught, float(wrong.mean())
 
 
+def _at_true_level(k: np.ndarray, k_true: np.ndarray) -> bool:
+    values, counts = np.unique(k - k_true, return_counts=True)
+    return bool(values[counts.argmax()] == 0)
+
+
+def channels_at_true_level(restored: np.ndarray, truth: np.ndarray) -> tuple[int, int]:
+    """Channels whose most common rollover difference from the truth is 0 (no offset aligned): of the result, and
+    of the truth itself re-anchored by ``anchor_k`` (what a perfect solver would return)."""
+    result = perfect = 0
+    for r, t in zip(restored, truth, strict=True):
+        k_true = np.floor(t / PERIOD).astype(np.int64)
+        result += _at_true_level(np.floor(r / PERIOD).astype(np.int64), k_true)
+        perfect += _at_true_level(anchor_k(k_true, modulus=np.mod(t, PERIOD).astype(np.int64), bits=BITS), k_true)
+    return result, perfect
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=DATA)
@@ -144,6 +163,7 @@ def main() -> None:
             restored, _ = restore(args.method, modulus)
             m_k, m_psnr = scores(restored, truth)
             c_auc, caught, wrong = confidence_scores(restored, truth)
+            level_result, level_perfect = channels_at_true_level(restored, truth)
             row = {
                 "scene": path.name,
                 "largest": largest,
@@ -154,6 +174,9 @@ def main() -> None:
                 "conf_auc": c_auc,
                 "caught10": caught,
                 "wrong": wrong,
+                "channels": int(truth.shape[0]),
+                "level_result": level_result,
+                "level_perfect": level_perfect,
             }
             if args.priors:
                 for cap in TRUNCATIONS:
@@ -182,6 +205,9 @@ def main() -> None:
             "psnr": mean("psnr"),
             "confidence_auc": mean("conf_auc"),
             "errors_in_least_confident_10pct": mean("caught10"),
+            "channels": sum(r["channels"] for r in rows),
+            "channels_at_true_level": sum(r["level_result"] for r in rows),
+            "channels_at_true_level_if_perfect": sum(r["level_perfect"] for r in rows),
             "scenes_under_10pct_wrong": len(good),
             "confidence_auc_those": mean("conf_auc", good),
             "errors_in_least_confident_10pct_those": mean("caught10", good),

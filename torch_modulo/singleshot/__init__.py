@@ -10,7 +10,7 @@ Methods (``method=``; new methods register in :data:`METHODS`):
   channels of a colour image on one shared tree (a step that is steep in one channel is avoided in all). The
   best configuration measured on the dev scenes (docs/singleshot.md): against ``"fast"``, exact-k 91.05% vs
   87.97% and 26.58 vs 25.75 dB under protocol B (RGB), 76.46% vs 76.62% and 21.10 vs 21.04 dB under protocol A
-  (luminance), at 0.4-0.8 instead of 25-34 s per megapixel and channel. Under strong noise in the low bits pass
+  (luminance), at 0.3-0.55 instead of 13-17 s per megapixel and channel. Under strong noise in the low bits pass
   ``denoise=0.7`` (or use ``"fast"``).
 - ``"fast"``: the paper's energy and moves on a cheaper schedule: start from path following when the wrapped
   image is smooth (no residues), else from ``k = 0``; global moves until one gains less than ``rel_tol`` of the
