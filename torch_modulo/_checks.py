@@ -11,7 +11,9 @@ Kornia release this project uses, so the checks are written here.)
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import numbers
+from collections.abc import Collection, Sequence
+from typing import Any
 
 import torch
 
@@ -19,6 +21,10 @@ __all__ = [
     "MAX_BITS",
     "all_integers",
     "check_bits",
+    "check_choice",
+    "check_flag",
+    "check_int",
+    "check_real",
     "check_finite",
     "check_floating",
     "check_image_shape",
@@ -35,6 +41,83 @@ MAX_BITS: dict[torch.dtype, int] = {
     torch.float32: 24,
     torch.float64: 53,
 }
+
+
+def check_int(value: object, name: str, low: int | None = None, high: int | None = None) -> int:
+    """Return ``value`` as ``int`` if it is an integer (not a bool) in ``[low, high]``; else raise.
+
+    Raises:
+        TypeError: ``value`` is not an integer (floats, strings and bools are refused).
+        ValueError: ``value`` is below ``low`` or above ``high``.
+    """
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer; got {value!r}")
+    value = int(value)
+    if low is not None and value < low:
+        raise ValueError(f"{name} must be >= {low}; got {value}")
+    if high is not None and value > high:
+        raise ValueError(f"{name} must be <= {high}; got {value}")
+    return value
+
+
+def check_real(
+    value: object,
+    name: str,
+    low: float | None = None,
+    *,
+    positive: bool = False,
+    high: float | None = None,
+    allow_inf: bool = False,
+) -> float:
+    """Return ``value`` as ``float`` if it is a real number (not a bool) within the bounds; else raise.
+
+    Args:
+        value: the argument to check.
+        name: its name, for the message.
+        low: smallest allowed value (inclusive), or ``None``.
+        positive: require ``value > 0``.
+        high: largest allowed value (inclusive), or ``None``.
+        allow_inf: accept ``+inf`` (NaN is always refused).
+
+    Raises:
+        TypeError: ``value`` is not a real number.
+        ValueError: NaN, infinite (unless allowed) or out of bounds.
+    """
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number; got {value!r}")
+    value = float(value)
+    if math.isnan(value) or (math.isinf(value) and not (allow_inf and value > 0)):
+        raise ValueError(f"{name} must be finite; got {value}")
+    if positive and value <= 0:
+        raise ValueError(f"{name} must be > 0; got {value}")
+    if low is not None and value < low:
+        raise ValueError(f"{name} must be >= {low}; got {value}")
+    if high is not None and value > high:
+        raise ValueError(f"{name} must be <= {high}; got {value}")
+    return value
+
+
+def check_flag(value: object, name: str) -> bool:
+    """Return ``value`` as ``bool`` if it is a bool (Python or NumPy); refuse truthy stand-ins like ``"no"``."""
+    if isinstance(value, bool):
+        return value
+    if type(value).__module__ == "numpy" and type(value).__name__ in ("bool", "bool_"):
+        return bool(value)
+    raise TypeError(f"{name} must be True or False; got {value!r}")
+
+
+def check_choice(value: Any, name: str, choices: Collection[Any]) -> Any:
+    """Return ``value`` if it is one of ``choices``; unhashable or unknown values get a ``ValueError`` naming both."""
+    try:
+        ok = value in choices
+    except TypeError:
+        ok = False
+    if isinstance(value, bool) and not any(isinstance(c, bool) for c in choices):
+        ok = False  # True == 1: a flag is not a number
+    if not ok:
+        shown = ", ".join(repr(c) for c in sorted(choices, key=repr))
+        raise ValueError(f"{name} must be one of {shown}; got {value!r}")
+    return value
 
 
 def check_tensor(x: object, name: str) -> torch.Tensor:

@@ -1,0 +1,77 @@
+"""Scalar argument checks shared by every operation (torch_modulo/_checks.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from torch_modulo._checks import check_choice, check_flag, check_int, check_real
+
+
+class TestCheckInt:
+    @pytest.mark.parametrize("value", [3, np.int64(3)])
+    def test_accepts_integers(self, value: object) -> None:
+        assert check_int(value, "n", 1, 5) == 3
+        assert type(check_int(value, "n")) is int
+
+    @pytest.mark.parametrize("value", [True, 3.0, "3", None, [3]])
+    def test_refuses_non_integers(self, value: object) -> None:
+        with pytest.raises(TypeError, match="n must be an integer"):
+            check_int(value, "n")
+
+    def test_bounds_name_the_value(self) -> None:
+        with pytest.raises(ValueError, match="n must be >= 1; got 0"):
+            check_int(0, "n", 1)
+        with pytest.raises(ValueError, match="n must be <= 5; got 6"):
+            check_int(6, "n", high=5)
+
+
+class TestCheckReal:
+    @pytest.mark.parametrize("value", [2, 2.5, np.float32(2.5), np.int32(2)])
+    def test_accepts_reals(self, value: object) -> None:
+        assert check_real(value, "x") == float(value)
+
+    @pytest.mark.parametrize("value", [False, "x", None, 1j])
+    def test_refuses_non_reals(self, value: object) -> None:
+        with pytest.raises(TypeError, match="x must be a real number"):
+            check_real(value, "x")
+
+    def test_nan_and_inf(self) -> None:
+        with pytest.raises(ValueError, match="finite; got nan"):
+            check_real(math.nan, "x")
+        with pytest.raises(ValueError, match="finite; got inf"):
+            check_real(math.inf, "x")
+        assert check_real(math.inf, "x", allow_inf=True) == math.inf
+        with pytest.raises(ValueError, match="finite; got -inf"):
+            check_real(-math.inf, "x", allow_inf=True)
+
+    def test_bounds(self) -> None:
+        with pytest.raises(ValueError, match="x must be > 0; got 0.0"):
+            check_real(0, "x", positive=True)
+        with pytest.raises(ValueError, match="x must be >= 1"):
+            check_real(0.5, "x", 1)
+        with pytest.raises(ValueError, match="x must be <= 1"):
+            check_real(1.5, "x", high=1)
+
+
+class TestCheckFlag:
+    def test_accepts_bools(self) -> None:
+        assert check_flag(True, "f") is True
+        assert check_flag(np.bool_(False), "f") is False
+
+    @pytest.mark.parametrize("value", ["no", "yes", 0, 1, None, 1.0])
+    def test_refuses_truthy_stand_ins(self, value: object) -> None:
+        with pytest.raises(TypeError, match="f must be True or False"):
+            check_flag(value, "f")
+
+
+class TestCheckChoice:
+    def test_accepts_members(self) -> None:
+        assert check_choice(8, "neighborhood", (4, 8)) == 8
+
+    @pytest.mark.parametrize("value", [6, [8], "8", True, None])
+    def test_refuses_others_naming_both(self, value: object) -> None:
+        with pytest.raises(ValueError, match=r"neighborhood must be one of 4, 8; got"):
+            check_choice(value, "neighborhood", (4, 8))
