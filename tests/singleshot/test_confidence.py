@@ -9,7 +9,7 @@ import torch
 import torch_modulo as tm
 from torch_modulo.singleshot import UnwrapConfidence, unwrap_confidence, unwrap_single
 from torch_modulo.singleshot.confidence import bottleneck_steps
-from torch_modulo.singleshot.energy import pair_offsets, pair_slices
+from torch_modulo.singleshot.grid import pair_offsets, pair_slices
 
 
 def brute_bottleneck(image: np.ndarray, sources: np.ndarray, neighborhood: int) -> np.ndarray:

@@ -13,9 +13,7 @@ from torch_modulo.singleshot.energy import (
     Potential,
     UnwrapEnergy,
     is_representable,
-    pair_indices,
     pair_offsets,
-    pair_slices,
     potential,
     unwrap_energy,
 )
@@ -198,19 +196,3 @@ class TestUnwrapEnergy:
             unwrap_energy(torch.zeros(3, 3, dtype=torch.int64))
         with pytest.raises(ValueError, match="6"):
             UnwrapEnergy(neighborhood=6)
-
-
-def test_pair_offsets() -> None:
-    assert pair_offsets(4) == ((0, 1), (1, 0))
-    assert set(pair_offsets(8)) == {(0, 1), (1, 0), (1, 1), (1, -1)}
-    with pytest.raises(ValueError, match="True"):
-        pair_offsets(True)  # type: ignore[arg-type]
-
-
-@pytest.mark.parametrize("offset", [(0, 1), (1, 0), (1, 1), (1, -1)])
-def test_pair_indices_follow_pair_slices(offset: tuple[int, int]) -> None:
-    image = np.arange(5 * 7).reshape(5, 7) * 10
-    first, second = pair_slices(5, 7, offset)
-    i, j = pair_indices(5, 7, offset)
-    assert np.array_equal(image.ravel()[i], image[first].ravel())
-    assert np.array_equal(image.ravel()[j], image[second].ravel())

@@ -1,35 +1,31 @@
 """Single-shot unwrapping (paper Sec. 4): recover the counts ``I = I_m + k 2^N`` from one modulus image.
 
-:func:`unwrap_single` minimises the energy of Eqs. 3-5 (:mod:`torch_modulo.singleshot.energy`) over the
-rollover counts ``k`` with binary graph-cut moves (:mod:`torch_modulo.singleshot.graphcut`), solving the
-images and channels of a batch in worker processes (:mod:`torch_modulo.singleshot.parallel`).
-
-Methods (``method=``; new methods register in :data:`METHODS`):
+:func:`unwrap_single` (and its module twin :class:`SingleShotUnwrap`) chooses the rollover counts ``k`` with one of
+the methods of :data:`METHODS`:
 
 - ``"guided"`` (default): reliability-guided path following (Herraez et al. 2002) without a graph cut, the
-  channels of a colour image on one shared tree (a step that is steep in one channel is avoided in all). The
-  best configuration measured on the dev scenes (docs/singleshot.md): against ``"fast"``, exact-k 91.05% vs
-  87.97% and 26.58 vs 25.75 dB under protocol B (RGB), 76.46% vs 76.62% and 21.10 vs 21.04 dB under protocol A
-  (luminance), at 0.3-0.55 instead of 13-17 s per megapixel and channel. Under strong noise in the low bits pass
-  ``denoise=0.7`` (or use ``"fast"``).
-- ``"fast"``: the paper's energy and moves on a cheaper schedule: start from path following when the wrapped
+  channels of a colour image on one shared tree, so that a step that is steep in one channel is avoided in all
+  (:mod:`torch_modulo.singleshot.pathfollow`). Under strong noise in the low bits pass ``denoise=0.7`` (or use
+  ``"fast"``).
+- ``"fast"``: the paper's energy (Eqs. 3-5, :mod:`torch_modulo.singleshot.energy`) and binary graph-cut moves
+  (:mod:`torch_modulo.singleshot.graphcut`) on a cheaper schedule: start from path following when the wrapped
   image is smooth (no residues), else from ``k = 0``; global moves until one gains less than ``rel_tol`` of the
-  energy; then local moves in tiles. On the dev scenes it reaches the faithful solver's energy on average
-  (0.99996 of it under protocol A) in about half the time; on smooth images, where the paper's loop needs one
-  slow global cut per rollover level, it is two orders of magnitude faster.
+  energy; then local moves in tiles.
 - ``"paper"``: the paper's algorithm as published: from ``k = 0``, moves ``k <- k + delta`` while the energy
   drops, then step ``sigma``; non-representable pair terms lose their pairwise edge (PUMA).
 
-See docs/singleshot.md for the measurements.
+Methods are entries of :data:`torch_modulo.singleshot.methods.REGISTRY` (solver, options, whether the channels of
+an image are solved together). The images and channels of a batch are solved in worker processes
+(:mod:`torch_modulo.singleshot.workers`). docs/singleshot.md has the measurements.
 
 Unwrapping fixes ``k`` up to one constant per image and channel; the output puts the darkest large connected
-region at ``k = 0`` and no pixel below it (``k >= 0``). :func:`unwrap_confidence` tells, per pixel, whether the
-level of a result is determined by the data or guessed (:mod:`torch_modulo.singleshot.confidence`).
+region at ``k = 0`` and no pixel below it (``k >= 0``, :mod:`torch_modulo.singleshot.anchor`).
+:func:`unwrap_confidence` tells, per pixel, whether the level of a result is determined by the data or guessed
+(:mod:`torch_modulo.singleshot.confidence`).
 """
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,25 +34,19 @@ import numpy as np
 import torch
 from torch import nn
 
-from torch_modulo._checks import MAX_BITS, check_bits, check_floating, check_image_shape, check_modulus, check_tensor
+from torch_modulo._checks import (
+    MAX_BITS,
+    check_bits,
+    check_flag,
+    check_floating,
+    check_image_shape,
+    check_modulus,
+    check_tensor,
+)
 from torch_modulo.singleshot.confidence import UnwrapConfidence, unwrap_confidence
-from torch_modulo.singleshot.energy import (
-    EnergyParams,
-    Potential,
-    UnwrapEnergy,
-    is_representable,
-    pair_offsets,
-    potential,
-    unwrap_energy,
-)
-from torch_modulo.singleshot.parallel import (
-    JOINT_CHANNELS,
-    METHOD_OPTIONS,
-    METHODS,
-    SolverSpec,
-    run_planes,
-    shutdown_workers,
-)
+from torch_modulo.singleshot.energy import Potential, UnwrapEnergy, is_representable, potential, unwrap_energy
+from torch_modulo.singleshot.methods import METHODS, REGISTRY, SolverSpec, make_spec
+from torch_modulo.singleshot.workers import check_workers, run_planes, shutdown_workers
 
 __all__ = [
     "METHODS",
@@ -100,84 +90,8 @@ class SingleShotInfo:
     method: str = "guided"
 
 
-def _check_int(value: object, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise TypeError(f"{name} must be an integer; got {value!r}")
-    if value < low:
-        raise ValueError(f"{name} must be >= {low}; got {value}")
-    return int(value)
-
-
-def _check_options(method: str, options: dict[str, Any]) -> tuple[tuple[str, Any], ...]:
-    allowed = METHOD_OPTIONS[method]
-    unknown = sorted(set(options) - set(allowed))
-    if unknown:
-        known = ", ".join(sorted(allowed)) or "none"
-        raise TypeError(f"method {method!r} does not take option(s) {', '.join(unknown)}; it takes: {known}")
-    checked = dict(options)
-    if "init" in checked and checked["init"] not in ("auto", "zeros", "quality"):
-        raise ValueError(f"init must be 'auto', 'zeros' or 'quality'; got {checked['init']!r}")
-    if "denoise" in checked:
-        value = checked["denoise"]
-        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
-            raise TypeError(f"denoise must be a number of pixels; got {value!r}")
-        if not (math.isfinite(value) and value >= 0):
-            raise ValueError(f"denoise must be finite and >= 0; got {value}")
-        checked["denoise"] = float(value)
-    if "rel_tol" in checked:
-        value = checked["rel_tol"]
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise TypeError(f"rel_tol must be a number; got {value!r}")
-        if not (math.isfinite(value) and value >= 0):
-            raise ValueError(f"rel_tol must be finite and >= 0; got {value}")
-        checked["rel_tol"] = float(value)
-    if "tile" in checked:
-        checked["tile"] = _check_int(checked["tile"], "tile", 0)
-        if checked["tile"] == 1:
-            raise ValueError("tile must be 0 (no local moves) or >= 2; got 1")
-    for flag in ("contract", "colour"):
-        if flag in checked:
-            if not isinstance(checked[flag], bool | np.bool_):
-                raise TypeError(f"{flag} must be a bool; got {checked[flag]!r}")
-            checked[flag] = bool(checked[flag])
-    return tuple(sorted(checked.items()))
-
-
-def _make_spec(
-    bits: int,
-    method: str,
-    neighborhood: int,
-    a1: float,
-    a2: float,
-    x0: float | None,
-    sigma: int,
-    max_iter: int,
-    options: dict[str, Any],
-) -> SolverSpec:
-    """Validate the solver settings once (shared by :func:`unwrap_single` and :class:`SingleShotUnwrap`)."""
-    if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"method must be one of {sorted(METHODS)}; got {method!r}")
-    params = EnergyParams.make(bits, a1, a2, x0)
-    pair_offsets(neighborhood)
-    sigma = _check_int(sigma, "sigma", 1)
-    max_iter = _check_int(max_iter, "max_iter", 0)
-    return SolverSpec(
-        method=method,
-        params=params,
-        neighborhood=int(neighborhood),
-        sigma=sigma,
-        max_iter=max_iter,
-        options=_check_options(method, options),
-    )
-
-
-def _check_workers(workers: object) -> int | None:
-    if workers is None:
-        return None
-    return _check_int(workers, "workers", 1)
-
-
 def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tuple[torch.Tensor, SingleShotInfo]:
+    """Check the tensor, solve its planes (in workers when that pays) and assemble the output and the info."""
     check_tensor(modulus, "modulus")
     check_floating(modulus, "modulus")
     check_image_shape(modulus, "modulus", 2, 4)
@@ -190,7 +104,7 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     b, c = int(lead[0]), int(lead[1])
     batch = modulus.reshape(b, c, h, w)
     planes = list(batch.detach().to("cpu", torch.float64).reshape(b * c, h, w).numpy().astype(np.int64))
-    results = run_planes(planes, spec, workers, group=c if spec.method in JOINT_CHANNELS else 1)
+    results = run_planes(planes, spec, workers, group=c if REGISTRY[spec.method].joint_channels else 1)
     if results:
         restored = torch.from_numpy(np.stack([r for r, _ in results]).astype(np.float64))
     else:
@@ -242,18 +156,16 @@ def unwrap_single(
     most reliable paths instead. Then ``k`` is anchored: the darkest connected region holding at least 3% of
     the pixels (or 0.1% with mostly smooth borders) gets ``k = 0`` and nothing is left below it (``k >= 0``).
     Images are independent problems, and so are channels for the graph-cut methods; they are solved in parallel
-    worker processes. The energy settings
-    (``neighborhood``, ``a1``, ``a2``, ``x0``) and ``sigma``, ``max_iter`` steer the graph-cut methods; for
-    ``"guided"`` they only define the energy it reports.
+    worker processes. The energy settings (``neighborhood``, ``a1``, ``a2``, ``x0``) and ``sigma``, ``max_iter``
+    steer the graph-cut methods; for ``"guided"`` they only define the energy it reports.
 
     Args:
         modulus: integer-valued floating tensor in ``[0, 2**bits)``, shape (B, C, H, W), (C, H, W) or (H, W),
             on any device.
         bits: sensor bit depth ``N``.
-        method: ``"guided"`` (default: path following without a graph cut, the channels of an image together;
-            the best measured configuration, see docs/singleshot.md), ``"fast"`` (the paper's energy and moves on a
-            cheaper schedule: the same energy on average, 2x faster than ``"paper"``, smooth images 100x faster)
-            or ``"paper"`` (the published algorithm as printed, from ``k = 0``).
+        method: one of :data:`METHODS`: ``"guided"`` (default: path following without a graph cut, the channels
+            of an image together), ``"fast"`` (the paper's energy and moves on a cheaper schedule) or
+            ``"paper"`` (the published algorithm as printed, from ``k = 0``).
         neighborhood: 8 (the paper) or 4.
         a1: slope of the linear part of ``V`` (Eq. 5).
         a2: curvature of the quadratic part of ``V``.
@@ -261,15 +173,15 @@ def unwrap_single(
         sigma: the larger step tried when step-1 moves stop helping (paper: 2; 1 disables it).
         max_iter: the most global minimum cuts per plane.
         workers: worker processes; ``None`` uses ``min(planes, os.cpu_count())`` when the job is large enough to
-            pay for a pool, else runs in-process; 1 always runs in-process. Scripts that use a pool need the
-            usual ``if __name__ == "__main__":`` guard.
+            pay for a pool, else runs in-process; 1 always runs in-process, and so does any value inside a
+            daemonic process (a DataLoader worker, say). Scripts that use a pool need the usual
+            ``if __name__ == "__main__":`` guard.
         return_info: also return a :class:`SingleShotInfo` (energy per iteration, iteration counts, timings).
         **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
-            ``"auto"``),
-            ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase), ``contract``
-            (default False). ``"guided"``: ``colour`` (default True: the channels of an image share one tree;
-            False: each channel alone), ``denoise`` (default 0: the standard deviation in pixels of a Gaussian
-            applied to the wrapped image's phasor first; about 0.7 for frames with noise in the low bits).
+            ``"auto"``), ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase).
+            ``"guided"``: ``colour`` (default True: the channels of an image share one tree; False: each channel
+            alone), ``denoise`` (default 0: the standard deviation in pixels of a Gaussian applied to the wrapped
+            image's phasor first; about 0.7 for frames with noise in the low bits).
 
     Returns:
         The restored counts ``I_m + k 2**bits``: same shape, dtype and device as ``modulus``; with
@@ -286,10 +198,9 @@ def unwrap_single(
         >>> bool(torch.equal(restored, ramp))
         True
     """
-    spec = _make_spec(bits, method, neighborhood, a1, a2, x0, sigma, max_iter, options)
-    if not isinstance(return_info, bool):
-        raise TypeError(f"return_info must be a bool; got {return_info!r}")
-    out, info = _solve(modulus, spec, _check_workers(workers))
+    spec = make_spec(bits, method, neighborhood, a1, a2, x0, sigma, max_iter, options)
+    check_flag(return_info, "return_info")
+    out, info = _solve(modulus, spec, check_workers(workers))
     return (out, info) if return_info else out
 
 
@@ -333,8 +244,8 @@ class SingleShotUnwrap(nn.Module):
         **options: Any,
     ) -> None:
         super().__init__()
-        self.spec = _make_spec(bits, method, neighborhood, a1, a2, x0, sigma, max_iter, options)
-        self.workers = _check_workers(workers)
+        self.spec = make_spec(bits, method, neighborhood, a1, a2, x0, sigma, max_iter, options)
+        self.workers = check_workers(workers)
         self.bits = self.spec.params.bits
         self.method = method
 

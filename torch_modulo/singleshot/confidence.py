@@ -12,11 +12,10 @@ The bottleneck of every pixel is read off a minimum spanning tree of the neighbo
 ``|I_i - I_j|`` (the tree path between two nodes minimises the largest weight on the path), with scipy, and
 the largest weight on each tree path is taken by pointer jumping: whole-array calls, no per-pixel loop.
 
-On the 39 dev scenes under protocol A (scripts/single_limits.py, docs/singleshot.md), for quality-guided path
-following, the least confident 10% of the pixels hold 97% of the wrong ``k`` (ROC AUC 0.99) on the 22 scenes
-where fewer than 10% are wrong. It cannot
-flag a region that was put at a wrong level *consistently*: where half of the image is one level off behind a
-long edge, both halves look smooth (a second exposure, :func:`torch_modulo.unwrap_multi`, settles it).
+Where a result is mostly right, its errors sit among the least confident pixels (docs/singleshot.md has the
+measurements). It cannot flag a region that was put at a wrong level *consistently*: where half of the image is
+one level off behind a long edge, both halves look smooth (a second exposure, :func:`torch_modulo.unwrap_multi`,
+settles it).
 """
 
 from __future__ import annotations
@@ -26,9 +25,7 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import check_bits, check_finite, check_floating, check_image_shape, check_tensor
-from torch_modulo.singleshot.energy import pair_indices, pair_offsets
-from torch_modulo.singleshot.graphcut import _components
-from torch_modulo.singleshot.init import path_to_root, spanning_tree
+from torch_modulo.singleshot.grid import components, pair_indices, pair_offsets, path_to_root, spanning_tree
 
 __all__ = ["UnwrapConfidence", "bottleneck_steps", "unwrap_confidence"]
 
@@ -55,7 +52,7 @@ def bottleneck_steps(image: np.ndarray, bits: int = 8, neighborhood: int = 8) ->
     flat = image.ravel()
     step = np.abs(flat[i] - flat[j])
     joined = step <= (1 << bits) / 8
-    _, labels = _components(n, i[joined], j[joined])
+    _, labels = components(n, i[joined], j[joined])
     root = int(np.argmax(labels == np.bincount(labels).argmax()))  # a pixel of the largest region
     # scipy reads a stored 0 as "no edge": every weight is shifted by 1 (the tree is the same).
     parent = spanning_tree(n, i, j, step + 1.0, root)

@@ -13,74 +13,33 @@ where :math:`a_1 = 0.1`, :math:`a_2 = 10^{-5}`, :math:`x_0 = 2^{N-1}` and :math:
 ``V`` continuous. A pair term of a binary move with step ``s`` is graph-representable (Eq. 4) where
 :math:`V(x + s 2^N) + V(x - s 2^N) \\ge 2 V(x)`.
 
-The torch functions here work on any device and dtype and are differentiable almost everywhere; the solver
-in :mod:`torch_modulo.singleshot.graphcut` uses the numpy twins (``_potential_np`` and friends), which share
-:class:`EnergyParams` so both sides compute the same numbers.
+The torch functions here work on any device and dtype and are differentiable almost everywhere; the solvers
+in :mod:`torch_modulo.singleshot.graphcut` use the numpy twins (:func:`potential_np`, :func:`energy_np`), which
+share :class:`EnergyParams` so both sides compute the same numbers.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
-from torch_modulo._checks import check_bits, check_finite, check_floating, check_image_shape
+from torch_modulo._checks import check_bits, check_finite, check_floating, check_image_shape, check_int, check_real
+from torch_modulo.singleshot.grid import pair_offsets, pair_slices
 
 __all__ = [
     "EnergyParams",
     "Potential",
     "UnwrapEnergy",
+    "energy_np",
     "is_representable",
-    "pair_offsets",
+    "pair_offsets",  # re-exported from grid, where it lives
     "potential",
+    "potential_np",
     "unwrap_energy",
 ]
-
-#: Neighbour offsets (dy, dx) covering every unordered pair of a neighbourhood exactly once.
-_OFFSETS: dict[int, tuple[tuple[int, int], ...]] = {
-    4: ((0, 1), (1, 0)),
-    8: ((0, 1), (1, 0), (1, 1), (1, -1)),
-}
-
-
-def pair_offsets(neighborhood: int = 8) -> tuple[tuple[int, int], ...]:
-    """The offsets ``(dy, dx)`` that enumerate each unordered neighbour pair once.
-
-    Args:
-        neighborhood: 8 (the paper, Fig. 4b) or 4.
-
-    Returns:
-        ``((0, 1), (1, 0))`` for 4; the same plus the diagonals ``(1, 1), (1, -1)`` for 8.
-
-    Example:
-        >>> pair_offsets(4)
-        ((0, 1), (1, 0))
-    """
-    if isinstance(neighborhood, bool) or neighborhood not in _OFFSETS:
-        raise ValueError(f"neighborhood must be 4 or 8; got {neighborhood!r}")
-    return _OFFSETS[int(neighborhood)]
-
-
-def pair_slices(height: int, width: int, offset: tuple[int, int]) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
-    """Slices ``(first, second)`` so that ``x[first]`` and ``x[second]`` are the two ends of every pair.
-
-    Pixel ``(y, x)`` of ``first`` pairs with ``(y + dy, x + dx)`` of ``second``; pairs leaving the image are
-    dropped (no wrap-around).
-    """
-    dy, dx = offset
-    first = (slice(0, height - dy), slice(max(0, -dx), width - max(0, dx)))
-    second = (slice(dy, height), slice(max(0, dx), width + min(0, dx)))
-    return first, second
-
-
-def pair_indices(height: int, width: int, offset: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Flat indices (int64) of both ends of every pair at ``offset``, in the order of :func:`pair_slices`."""
-    ids = np.arange(height * width, dtype=np.int64).reshape(height, width)
-    first, second = pair_slices(height, width, offset)
-    return ids[first].ravel(), ids[second].ravel()
 
 
 @dataclass(frozen=True)
@@ -117,40 +76,36 @@ class EnergyParams:
             ValueError: ``bits < 1``, ``a1`` or ``a2`` negative, ``x0`` not positive, or a value not finite.
         """
         bits = check_bits(bits, torch.float64)
-        if x0 is None:
-            x0 = float(2 ** (bits - 1))
-        values = {}
-        for name, value in (("a1", a1), ("a2", a2), ("x0", x0)):
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise TypeError(f"{name} must be a real number; got {value!r}")
-            value = float(value)
-            if not math.isfinite(value):
-                raise ValueError(f"{name} must be finite; got {value}")
-            values[name] = value
-        if values["a1"] < 0:
-            raise ValueError(f"a1 must be >= 0; got {values['a1']}")
-        if values["a2"] < 0:
-            raise ValueError(f"a2 must be >= 0; got {values['a2']}")
-        if values["x0"] <= 0:
-            raise ValueError(f"x0 must be > 0; got {values['x0']}")
-        b = values["a1"] * values["x0"] - values["a2"] * values["x0"] ** 2
-        return cls(bits=bits, a1=values["a1"], a2=values["a2"], x0=values["x0"], b=b)
+        a1 = check_real(a1, "a1", 0)
+        a2 = check_real(a2, "a2", 0)
+        x0 = check_real(float(2 ** (bits - 1)) if x0 is None else x0, "x0", positive=True)
+        return cls(bits=bits, a1=a1, a2=a2, x0=x0, b=a1 * x0 - a2 * x0**2)
 
 
-def _potential_np(x: np.ndarray, p: EnergyParams) -> np.ndarray:
-    """Eq. 5 on a numpy array (float64 result)."""
+def potential_np(x: np.ndarray, p: EnergyParams) -> np.ndarray:
+    """Eq. 5 on a numpy array (float64 result): the numpy twin of :func:`potential`.
+
+    Example:
+        >>> potential_np(np.array([0.0, -100.0]), EnergyParams.make(8)).tolist()
+        [0.0, 10.0]
+    """
     ax = np.abs(np.asarray(x, dtype=np.float64))
     return np.where(ax <= p.x0, p.a1 * ax, p.a2 * ax * ax + p.b)
 
 
-def _energy_np(restored: np.ndarray, p: EnergyParams, offsets: tuple[tuple[int, int], ...]) -> float:
-    """Eq. 3 of one (H, W) plane in numpy (float64)."""
+def energy_np(restored: np.ndarray, p: EnergyParams, offsets: tuple[tuple[int, int], ...]) -> float:
+    """Eq. 3 of one (H, W) plane in numpy (float64): the numpy twin of :func:`unwrap_energy`.
+
+    Example:
+        >>> energy_np(np.array([[0, 10], [20, 30]]), EnergyParams.make(8), pair_offsets(4))
+        6.0
+    """
     h, w = restored.shape
     total = 0.0
     for off in offsets:
         first, second = pair_slices(h, w, off)
         d = restored[first].astype(np.float64) - restored[second]
-        total += float(_potential_np(d, p).sum())
+        total += float(potential_np(d, p).sum())
     return total
 
 
@@ -214,8 +169,7 @@ def is_representable(
         tensor([ True,  True, False])
     """
     check_floating(x, "x")
-    if isinstance(step, bool) or not isinstance(step, int) or step < 1:
-        raise ValueError(f"step must be a positive integer; got {step!r}")
+    step = check_int(step, "step", 1)
     p = EnergyParams.make(bits, a1, a2, x0)
     shift = float(step * p.period)
     v2 = 2 * potential(x, bits, a1=a1, a2=a2, x0=x0)

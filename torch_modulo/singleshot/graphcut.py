@@ -9,8 +9,7 @@ A move ``k <- k + s * delta`` with binary ``delta`` turns each pair term ``V(d)`
 
 - ``A >= 0`` and ``B >= 0`` (every smooth pair, ``|d| <= x0``): two directed edges, ``j -> i`` with capacity
   ``A`` and ``i -> j`` with capacity ``B``, and no terminal link. This represents the term exactly and keeps
-  the terminal links to the fringes, which makes the max-flow 14-30x faster than the textbook construction
-  (measured, ../shared/DESIGN.md);
+  the terminal links to the fringes, which makes the max-flow much faster than the textbook construction;
 - otherwise the negative one of ``A``, ``B`` becomes a pair of terminal links and ``A + B`` the one remaining
   edge. Where ``A + B < 0`` the term is not graph-representable (Eq. 4) and that edge gets weight 0, as in the
   paper and PUMA (Bioucas-Dias and Valadao 2007). The dropped edge only raises the graph's energy of the
@@ -25,16 +24,16 @@ too wide for a table), and every graph is built with whole-array calls (``Graph.
 
 Three solvers share this machinery:
 
-- :func:`solve_pixels`: the paper's algorithm, one node per pixel (``rel_tol`` can end it early).
+- :func:`solve_pixels`: the paper's algorithm (``method="paper"``), one node per pixel (``rel_tol`` can end it
+  early).
 - :func:`solve_tiles`: the same moves cut inside small tiles with the rest of the image fixed, up and down, only
   where something can still improve. The max-flow's cost grows much faster than the graph on these images,
   so many small cuts are far cheaper than one global cut; they find local moves only.
-- :func:`solve_contracted`: the same moves on a contracted graph. Pixels joined by small differences of the
-  current restored image (``|I_i - I_j| <= link``) form regions that move together; pixels on a region's border
-  (the band) stay single nodes, so fringes can still move by a pixel. The pair terms of each pair of nodes
-  are summed exactly, so the energy change of a contracted move is the true one.
+- :func:`solve_fast`: the schedule of ``method="fast"``: global pixel moves until one gains less than
+  ``rel_tol`` of the energy, then tiles.
 
-:func:`anchor_k` fixes the free global constant of ``k``.
+:func:`pixel_move` (one global move), :class:`PairTerms` (the pair terms of a move and their graph
+decomposition) and :func:`add_terminals` are the building blocks, public for solvers built on them.
 """
 
 from __future__ import annotations
@@ -45,15 +44,17 @@ from dataclasses import dataclass, field
 import maxflow
 import numpy as np
 
-from torch_modulo.singleshot.energy import EnergyParams, _potential_np, pair_slices
+from torch_modulo.singleshot.energy import EnergyParams, energy_np, potential_np
+from torch_modulo.singleshot.grid import dilate, pair_slices
 
 __all__ = [
     "MoveStats",
-    "anchor_k",
-    "contract_regions",
+    "PairTerms",
+    "add_terminals",
     "move_delta_e",
+    "pixel_move",
     "plane_energy",
-    "solve_contracted",
+    "solve_fast",
     "solve_pixels",
     "solve_tiles",
 ]
@@ -95,11 +96,22 @@ class MoveStats:
         return now
 
 
-class _PairTerms:
+class PairTerms:
     """``A(d)``, ``B(d)`` and their graph decomposition for a move of ``step`` periods.
 
     Differences ``d`` are integers in ``[-span, span]``; when the span is small enough the five quantities are
     tabulated once and looked up, otherwise they are computed directly.
+
+    Args:
+        p: the potential's parameters.
+        step: the move's step in periods.
+        span: the largest ``|d|`` that will be looked up.
+        pairs: the number of pairs of the graph (a table of up to 4 entries per pair is always allowed).
+
+    Example:
+        >>> terms = PairTerms(EnergyParams.make(8), 1, 300, 10)
+        >>> [float(v) for v in terms.ab(terms.index(np.array([0])))[0]]  # A(0) = V(256) - V(0)
+        [13.29152]
     """
 
     def __init__(self, p: EnergyParams, step: int, span: int, pairs: int) -> None:
@@ -110,14 +122,14 @@ class _PairTerms:
         if self.table:
             d = np.arange(-self.span, self.span + 1, dtype=np.float64)
             self.a, self.b = self._ab(d)
-            self.cij, self.cji, self.m = self._decompose(self.a, self.b)
+            self.cij, self.cji, self.m = self.decompose(self.a, self.b)
 
     def _ab(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        v = _potential_np(d, self.p)
-        return _potential_np(d + self.shift, self.p) - v, _potential_np(d - self.shift, self.p) - v
+        v = potential_np(d, self.p)
+        return potential_np(d + self.shift, self.p) - v, potential_np(d - self.shift, self.p) - v
 
     @staticmethod
-    def _decompose(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def decompose(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Capacities ``i -> j``, ``j -> i`` and the unary coefficient ``m`` (``+m`` on i, ``-m`` on j)."""
         neg = np.minimum(a, b) < 0
         a_low = a < b
@@ -135,14 +147,16 @@ class _PairTerms:
         return d
 
     def ab(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``A`` and ``B`` at the indices from :meth:`index`."""
         if self.table:
             return self.a[idx], self.b[idx]
         return self._ab(idx.astype(np.float64))
 
     def graph_terms(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`decompose` of the terms at the indices from :meth:`index`."""
         if self.table:
             return self.cij[idx], self.cji[idx], self.m[idx]
-        return self._decompose(*self._ab(idx.astype(np.float64)))
+        return self.decompose(*self._ab(idx.astype(np.float64)))
 
 
 def _span(restored: np.ndarray) -> int:
@@ -156,10 +170,8 @@ def plane_energy(restored: np.ndarray, p: EnergyParams, offsets: tuple[tuple[int
     h, w = restored.shape
     span = _span(restored)
     if 2 * span + 1 > max(_TABLE_LIMIT, 4 * restored.size):
-        from torch_modulo.singleshot.energy import _energy_np
-
-        return _energy_np(restored, p, offsets)
-    table = _potential_np(np.arange(-span, span + 1, dtype=np.float64), p)
+        return energy_np(restored, p, offsets)
+    table = potential_np(np.arange(-span, span + 1, dtype=np.float64), p)
     total = 0.0
     for off in offsets:
         first, second = pair_slices(h, w, off)
@@ -174,7 +186,7 @@ def _accept(delta_e: float, energy: float) -> bool:
     return delta_e < -1e-9 * max(1.0, abs(energy))
 
 
-def _add_terminals(graph: maxflow.GraphFloat, unary: np.ndarray) -> None:
+def add_terminals(graph: maxflow.GraphFloat, unary: np.ndarray) -> None:
     """``unary[n] * x_n``: a source link of ``u`` where ``u > 0``, a sink link of ``-u`` where ``u < 0``."""
     nz = np.flatnonzero(unary)
     if nz.size:
@@ -186,20 +198,30 @@ def _add_terminals(graph: maxflow.GraphFloat, unary: np.ndarray) -> None:
 _CHUNK = 1 << 16
 
 
-def _pixel_move(
-    restored: np.ndarray, p: EnergyParams, offsets: tuple[tuple[int, int], ...], step: int, span: int
+def pixel_move(
+    restored: np.ndarray, p: EnergyParams, offsets: tuple[tuple[int, int], ...], step: int, span: int | None = None
 ) -> tuple[np.ndarray, float]:
-    """One binary move on the pixel grid: returns ``delta`` (bool, (H, W)) and the exact energy change.
+    """One binary move ``k <- k + step * delta`` on the pixel grid: ``delta`` (bool, (H, W)) and the exact energy
+    change.
 
     Edges are added node by node (all pairs of a pixel together) rather than offset by offset: the max-flow
-    walks each node's arcs, and keeping them close in memory made it 1.2-1.5x faster on real scenes. They are
-    assembled in chunks of rows so that the temporaries stay small next to the graph itself.
+    walks each node's arcs, and keeping them close in memory makes it faster. They are assembled in chunks of
+    rows so that the temporaries stay small next to the graph itself.
+
+    Args:
+        restored: int64 (H, W) plane ``I_m + k 2**bits``.
+        p: the potential's parameters.
+        offsets: neighbour offsets from :func:`~torch_modulo.singleshot.grid.pair_offsets`.
+        step: the move's step in periods.
+        span: ``restored.max() - restored.min()`` when the caller knows it (computed otherwise).
     """
+    if span is None:
+        span = _span(restored)
     h, w = restored.shape
     n = h * w
     k = len(offsets)
     n_pairs = sum((h - dy) * (w - abs(dx)) for dy, dx in offsets)
-    terms = _PairTerms(p, step, span, n_pairs)
+    terms = PairTerms(p, step, span, n_pairs)
     ids = np.arange(n, dtype=np.int64).reshape(h, w)
     unary = np.zeros((h, w))
     graph = maxflow.Graph[float](n, n_pairs)
@@ -226,7 +248,7 @@ def _pixel_move(
         valid = partner >= 0
         source = np.broadcast_to(ids[r0:r1, :, None], valid.shape)[valid]
         graph.add_edges(source, partner[valid], cap_ij[valid], cap_ji[valid])
-    _add_terminals(graph, unary.ravel())
+    add_terminals(graph, unary.ravel())
     del unary
     graph.maxflow()
     delta = graph.get_grid_segments(ids)
@@ -277,7 +299,7 @@ def solve_pixels(
         if cuts >= max_iter:
             stats.stop = "max_iter"
             break
-        delta, delta_e = _pixel_move(restored, p, offsets, step, span)
+        delta, delta_e = pixel_move(restored, p, offsets, step, span)
         cuts += 1
         stats.cuts += 1
         stats.nodes.append(restored.size)
@@ -299,183 +321,6 @@ def solve_pixels(
     return restored
 
 
-# ----------------------------------------------------------------------------------------------- contraction
-
-
-def _components(n: int, rows: np.ndarray, cols: np.ndarray) -> tuple[int, np.ndarray]:
-    """Connected components of an undirected graph on ``n`` nodes given by edge lists."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n)).tocsr()
-    return connected_components(graph, directed=False)
-
-
-def contract_regions(
-    restored: np.ndarray, link: float, offsets: tuple[tuple[int, int], ...], band: int = 1, block: int = 0
-) -> tuple[int, np.ndarray]:
-    """Label the nodes of a contracted graph: regions of the restored image plus single band pixels.
-
-    Pixels joined (4-neighbourhood) by ``|I_i - I_j| <= link`` form regions; every pixel that takes part in a
-    pair (over ``offsets``) whose ends lie in different regions, dilated ``band - 1`` more times, becomes a node
-    of its own. With ``band=0`` the regions are the nodes. With ``block > 0`` regions are further cut into
-    ``block`` x ``block`` squares, so that no node gets a huge degree.
-
-    Args:
-        restored: (H, W) integer plane.
-        link: the largest difference that joins two pixels.
-        offsets: the neighbourhood whose pairs define the band.
-        band: border width in pixels.
-        block: side of the squares regions are cut into (0: not cut).
-
-    Returns:
-        ``(n_nodes, labels)``: labels is an (H, W) intp array of node indices in ``[0, n_nodes)``.
-    """
-    h, w = restored.shape
-    n = h * w
-    ids = np.arange(n, dtype=np.intp).reshape(h, w)
-    rows, cols = [], []
-    for off in ((0, 1), (1, 0)):
-        first, second = pair_slices(h, w, off)
-        joined = np.abs(restored[first] - restored[second]) <= link
-        rows.append(ids[first][joined])
-        cols.append(ids[second][joined])
-    _, labels = _components(n, np.concatenate(rows), np.concatenate(cols))
-    labels = labels.reshape(h, w).astype(np.int64)
-    border = np.zeros((h, w), dtype=bool)
-    if band > 0:
-        for off in offsets:
-            first, second = pair_slices(h, w, off)
-            cross = labels[first] != labels[second]
-            border[first] |= cross
-            border[second] |= cross
-        for _ in range(band - 1):
-            border = _grow(border, offsets)
-    if block > 0:
-        # Split regions into blocks so that no node has a huge degree (the max-flow slows down on such hubs).
-        bw = (w + block - 1) // block
-        tiles = (np.arange(h) // block)[:, None] * bw + (np.arange(w) // block)[None, :]
-        labels = labels * ((h + block - 1) // block * bw) + tiles
-    if border.any():
-        # Band pixels get fresh labels after the regions.
-        labels[border] = int(labels.max()) + 1 + np.arange(int(border.sum()))
-    # Compact the labels to 0..n_nodes-1.
-    uniq, labels = np.unique(labels.ravel(), return_inverse=True)
-    return int(uniq.size), labels.reshape(h, w).astype(np.intp)
-
-
-class _ContractedGraph:
-    """The pairs of a contracted graph: pixel pairs whose ends lie in different nodes, summed per node pair."""
-
-    def __init__(self, labels: np.ndarray, n_nodes: int, offsets: tuple[tuple[int, int], ...]) -> None:
-        h, w = labels.shape
-        ids = np.arange(h * w, dtype=np.intp).reshape(h, w)
-        pi, pj = [], []
-        for off in offsets:
-            first, second = pair_slices(h, w, off)
-            cross = labels[first] != labels[second]
-            pi.append(ids[first][cross])
-            pj.append(ids[second][cross])
-        self.pi = np.concatenate(pi)
-        self.pj = np.concatenate(pj)
-        flat = labels.ravel()
-        a, b = flat[self.pi], flat[self.pj]
-        self.flip = a > b
-        lo = np.where(self.flip, b, a).astype(np.int64)
-        hi = np.where(self.flip, a, b).astype(np.int64)
-        keys, self.inverse = np.unique(lo * n_nodes + hi, return_inverse=True)
-        self.na = (keys // n_nodes).astype(np.intp)
-        self.nb = (keys % n_nodes).astype(np.intp)
-        self.n_nodes = n_nodes
-        self.labels = flat
-
-    def move(self, restored: np.ndarray, terms: _PairTerms) -> tuple[np.ndarray, float]:
-        """One binary move over the nodes: returns per-pixel ``delta`` (bool, flat) and the exact energy change."""
-        flat = restored.ravel()
-        idx = terms.index(flat[self.pi] - flat[self.pj])
-        a, b = terms.ab(idx)
-        a_node = np.where(self.flip, b, a)
-        b_node = np.where(self.flip, a, b)
-        npairs = self.na.size
-        aa = np.bincount(self.inverse, weights=a_node, minlength=npairs)
-        bb = np.bincount(self.inverse, weights=b_node, minlength=npairs)
-        cij, cji, m = _PairTerms._decompose(aa, bb)
-        graph = maxflow.Graph[float](self.n_nodes, npairs)
-        nodes = graph.add_nodes(self.n_nodes)
-        graph.add_edges(self.na, self.nb, cij, cji)
-        unary = np.bincount(self.na, weights=m, minlength=self.n_nodes) - np.bincount(
-            self.nb, weights=m, minlength=self.n_nodes
-        )
-        _add_terminals(graph, unary)
-        graph.maxflow()
-        delta_node = graph.get_grid_segments(nodes)
-        da, db = delta_node[self.na], delta_node[self.nb]
-        delta_e = float(aa[da & ~db].sum()) + float(bb[~da & db].sum())
-        return delta_node[self.labels], delta_e
-
-
-def solve_contracted(
-    restored: np.ndarray,
-    p: EnergyParams,
-    offsets: tuple[tuple[int, int], ...],
-    *,
-    link: float,
-    band: int = 1,
-    block: int = 0,
-    sigma: int = 2,
-    max_iter: int = 1000,
-    max_rounds: int = 20,
-    stats: MoveStats | None = None,
-) -> np.ndarray:
-    """The paper's moves on contracted graphs, re-contracting after every round that changed something.
-
-    Each round labels regions of the current restored image (:func:`contract_regions`), then runs step-1 and
-    step-``sigma`` moves over those nodes until neither lowers the energy. Every move's energy change is exact,
-    so the energy never rises. Rounds repeat (regions grow as fringes are removed) until a round accepts no
-    move, ``max_rounds`` rounds ran, or ``max_iter`` cuts were solved in all.
-
-    Returns:
-        The restored plane (int64) after the last accepted move.
-    """
-    stats = stats if stats is not None else MoveStats()
-    restored = np.array(restored, dtype=np.int64, copy=True)
-    start = time.perf_counter()
-    energy = plane_energy(restored, p, offsets)
-    if not stats.energies:
-        stats.energies.append(energy)
-    cuts = 0
-    for _ in range(max_rounds):
-        n_nodes, labels = contract_regions(restored, link, offsets, band, block)
-        if n_nodes < 2:
-            break
-        graph = _ContractedGraph(labels, n_nodes, offsets)
-        changed = False
-        step = 1
-        span = _span(restored)
-        while cuts < max_iter:
-            terms = _PairTerms(p, step, span, graph.pi.size)
-            delta, delta_e = graph.move(restored, terms)
-            cuts += 1
-            stats.cuts += 1
-            stats.nodes.append(n_nodes)
-            if _accept(delta_e, energy):
-                restored.ravel()[delta] += step * p.period
-                energy += delta_e
-                stats.energies.append(energy)
-                stats.steps.append(step)
-                span = _span(restored)
-                changed = True
-                step = 1
-            elif step == 1 and sigma > 1:
-                step = sigma
-            else:
-                break
-        if not changed or cuts >= max_iter:
-            break
-    stats.tick("contract", start)
-    return restored
-
-
 # ----------------------------------------------------------------------------------------------------- tiles
 
 
@@ -485,17 +330,6 @@ def _pair_index(width: int, offset: tuple[int, int], mask: np.ndarray) -> tuple[
     rows, cols = np.nonzero(mask)
     first = rows * width + (cols + max(0, -dx))
     return first, first + (dy * width + dx)
-
-
-def _grow(mask: np.ndarray, offsets: tuple[tuple[int, int], ...]) -> np.ndarray:
-    """Dilate a pixel mask by one neighbourhood step."""
-    h, w = mask.shape
-    grown = mask.copy()
-    for off in offsets:
-        first, second = pair_slices(h, w, off)
-        grown[first] |= mask[second]
-        grown[second] |= mask[first]
-    return grown
 
 
 def move_delta_e(
@@ -514,7 +348,7 @@ def move_delta_e(
         d = (flat[fi] - flat[fj]).astype(np.float64)
         moved_i = moved.ravel()[fi]
         new = d + np.where(moved_i, shift, -shift)
-        total += float(_potential_np(new, p).sum() - _potential_np(d, p).sum())
+        total += float(potential_np(new, p).sum() - potential_np(d, p).sum())
     return total
 
 
@@ -561,7 +395,7 @@ def _tile_move(
     node_of[nodes] = np.arange(n)
     free = free.reshape(h, w)
     sign = 1 if step > 0 else -1
-    terms = _PairTerms(p, abs(step), _span(restored), n * len(offsets))
+    terms = PairTerms(p, abs(step), _span(restored), n * len(offsets))
     graph = maxflow.Graph[float](n, len(offsets) * n)
     graph.add_nodes(n)
     unary = np.zeros(n)
@@ -584,7 +418,7 @@ def _tile_move(
         unary += np.bincount(ni[end_i], weights=a[end_i], minlength=n)
         unary += np.bincount(nj[end_j], weights=b[end_j], minlength=n)
         saved.append((ni, nj, ti, tj, a, b, inner))
-    _add_terminals(graph, unary)
+    add_terminals(graph, unary)
     graph.maxflow()
     delta = graph.get_grid_segments(np.arange(n))
     # Each tile's exact energy change with its neighbours held fixed.
@@ -603,6 +437,18 @@ def _tile_move(
     moved[nodes[delta]] = True
     moved &= keep[grid.index]
     return moved.reshape(h, w), n
+
+
+def _steep_pixels(restored: np.ndarray, offsets: tuple[tuple[int, int], ...], limit: float) -> np.ndarray:
+    """Pixels that take part in a pair more than ``limit`` apart."""
+    h, w = restored.shape
+    hot = np.zeros((h, w), dtype=bool)
+    for off in offsets:
+        first, second = pair_slices(h, w, off)
+        big = np.abs(restored[first] - restored[second]) > limit
+        hot[first] |= big
+        hot[second] |= big
+    return hot
 
 
 def solve_tiles(
@@ -651,13 +497,7 @@ def solve_tiles(
             changed = False
             if mask.any():
                 dirty[(shift, step)] = np.zeros((h, w), dtype=bool)
-                hot = np.zeros((h, w), dtype=bool)
-                limit = abs(step) * p.period / 2
-                for off in offsets:
-                    first, second = pair_slices(h, w, off)
-                    big = np.abs(restored[first] - restored[second]) > limit
-                    hot[first] |= big
-                    hot[second] |= big
+                hot = _steep_pixels(restored, offsets, abs(step) * p.period / 2)
                 todo = grid.tiles_of(mask) & grid.tiles_of(hot)
                 if todo.any():
                     tol = 1e-9 * max(1.0, abs(energy))
@@ -680,7 +520,7 @@ def solve_tiles(
                             energy += delta_e
                             stats.energies.append(energy)
                             stats.steps.append(step)
-                            touched = _grow(part, offsets)
+                            touched = dilate(part, offsets)
                             for combo in combos:
                                 dirty[combo] |= touched
                             changed = True
@@ -693,79 +533,45 @@ def solve_tiles(
     return restored
 
 
-def anchor_k(
-    k: np.ndarray,
-    min_fraction: float = 1e-3,
+def solve_fast(
+    restored: np.ndarray,
+    p: EnergyParams,
+    offsets: tuple[tuple[int, int], ...],
     *,
-    modulus: np.ndarray | None = None,
-    bits: int | None = None,
-    large_fraction: float = 0.03,
+    sigma: int = 2,
+    max_iter: int = 1000,
+    rel_tol: float = 3e-4,
+    tile: int = 64,
+    stats: MoveStats | None = None,
 ) -> np.ndarray:
-    """Shift ``k`` so that the darkest large connected region has ``k = 0``, and clip what falls below to 0.
+    """The paper's energy and moves on a cheaper schedule (``method="fast"``), from ``restored``.
 
-    Levels are tried from the lowest up; a level anchors the image when its largest 4-connected region holds at
-    least ``min_fraction`` of the pixels (and at least one pixel) and, if ``modulus`` is given, either holds at
-    least ``large_fraction`` of them or meets the rest of the image smoothly: more than 80% of its border pairs
-    step by less than half a period in the restored image ``modulus + k 2**bits``. Anchoring on the minimum
-    instead would let a handful of noisy pixels one level low shift the whole image (../shared/DESIGN.md). The
-    size and border tests keep bright regions that a solver put too low from anchoring the image, while the
-    true darkest region, a few percent of a smooth ramp say, still does. If no level passes, the lowest level
-    with a region of ``min_fraction`` anchors (the rule without ``modulus``); if none has one, the level of the
-    largest region does. On the dev scenes (39 scenes, 156
-    channels under protocols A and B) the bulk of "guided"'s results landed at its true level on 130 channels
-    (54 with the 0.1% rule alone), and the truth itself on 154 (2 true darkest regions are small and
-    steep-edged). Pixels left below 0 would mean negative counts, which a sensor cannot read, so they are set to 0.
+    Global pixel moves as in :func:`solve_pixels` until an accepted move gains less than ``rel_tol`` of the
+    energy; if that (or ``max_iter``) stopped them before the paper's rule did, local moves in ``tile`` x ``tile``
+    tiles (:func:`solve_tiles`) finish the job. The long tail of global moves that each gain little is what
+    costs most on textured images; the tiles find the same local moves far more cheaply.
 
     Args:
-        k: integer (H, W) rollover counts, determined up to a global constant.
-        min_fraction: the smallest region, as a share of the pixels, that may anchor the image.
-        modulus: the (H, W) modulus ``k`` belongs to; enables the border test.
-        bits: the bit depth of ``modulus`` (required with it).
-        large_fraction: with ``modulus``, regions at least this large anchor without the border test.
+        restored: int64 (H, W) plane ``I_m + k 2**bits`` to start from.
+        p: the potential's parameters.
+        offsets: neighbour offsets from :func:`~torch_modulo.singleshot.grid.pair_offsets`.
+        sigma: the larger step (paper: 2); 1 disables it.
+        max_iter: the most global cuts.
+        rel_tol: stop the global phase after an accepted move that gains less than this share of the energy.
+        tile: side of the tiles of the local phase; 0 skips it.
+        stats: filled with energies, steps, cut counts and timings when given.
 
     Returns:
-        int64 (H, W) counts ``>= 0``.
+        The restored plane (int64) after the last accepted move.
+
+    Example:
+        >>> ramp = np.arange(0, 1200, 40).reshape(1, -1).repeat(3, axis=0)
+        >>> out = solve_fast(ramp % 256, EnergyParams.make(8), ((0, 1), (1, 0)))
+        >>> bool(np.array_equal(out - out.min(), ramp))
+        True
     """
-    from scipy import ndimage
-
-    k = np.asarray(k, dtype=np.int64)
-    if k.size == 0:
-        return k.copy()
-    restored = None
-    if modulus is not None:
-        if bits is None:
-            raise ValueError("anchor_k needs bits with modulus")
-        restored = np.asarray(modulus, dtype=np.int64) + (k << bits)
-    need = max(1, int(np.ceil(min_fraction * k.size)))
-    large = max(need, int(np.ceil(large_fraction * k.size)))
-    best_size, best_level = -1, int(k.min())
-    first_large = None  # the lowest level with a region of ``need`` pixels: the fallback when no level passes
-    for level in np.unique(k):
-        lab, n = ndimage.label(k == level)
-        if not n:
-            continue
-        sizes = np.bincount(lab.ravel())
-        sizes[0] = 0
-        region = int(sizes.argmax())
-        size = int(sizes[region])
-        if size > best_size:
-            best_size, best_level = size, int(level)
-        if size < need:
-            continue
-        if first_large is None:
-            first_large = int(level)
-        if restored is None or size >= large or _smooth_border(lab == region, restored, 1 << (bits - 1)):
-            return np.maximum(k - level, 0)
-    return np.maximum(k - (first_large if first_large is not None else best_level), 0)
-
-
-def _smooth_border(region: np.ndarray, restored: np.ndarray, half: int) -> bool:
-    """Whether more than 80% of the 4-neighbour pairs leaving ``region`` step by less than ``half``."""
-    smooth = steep = 0
-    for off in ((0, 1), (1, 0)):
-        first, second = pair_slices(*region.shape, off)
-        leaving = region[first] != region[second]
-        small = np.abs(restored[first] - restored[second])[leaving] < half
-        smooth += int(small.sum())
-        steep += int(small.size - small.sum())
-    return smooth > 4 * steep
+    stats = stats if stats is not None else MoveStats()
+    restored = solve_pixels(restored, p, offsets, sigma=sigma, max_iter=max_iter, rel_tol=rel_tol, stats=stats)
+    if tile > 0 and stats.stop != "converged":
+        restored = solve_tiles(restored, p, offsets, tile=tile, sigma=sigma, stats=stats)
+    return restored

@@ -1,4 +1,4 @@
-"""Tests of torch_modulo.singleshot.natural (issue 4: single-shot unwrapping of natural scenes)."""
+"""Tests of research.natural: the natural-image model for single-shot unwrapping."""
 
 from __future__ import annotations
 
@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from torch_modulo.singleshot.energy import unwrap_energy
-from torch_modulo.singleshot.natural import (
+from research.natural import (
     NaturalOptions,
     NaturalUnwrap,
     fit_bounds,
@@ -15,6 +14,7 @@ from torch_modulo.singleshot.natural import (
     unwrap_natural,
     unwrap_natural_torch,
 )
+from torch_modulo.singleshot.energy import unwrap_energy
 
 
 def _smooth_scene(channels: int = 1, h: int = 24, w: int = 32, seed: int = 0) -> np.ndarray:

@@ -1,7 +1,7 @@
 """How much of a real scene can single-shot unwrapping recover at all, and does the confidence map find the rest?
 
-For every scene of ../shared/data/hdr under protocols A and B of BENCHMARKS.md (same scenes, downsampling and
-scores as scripts/bench_single.py), per channel:
+For every development scene under protocols A and B (same scenes, downsampling and scores as
+benchmarks/bench_single.py, through research/common.py), per channel:
 
 - ``largest``: the share of pixels in the largest region joined by true neighbour steps ``|I_i - I_j| < 128``
   (8-neighbourhood). Inside such a region the wrapped differences integrate to the truth; between regions only
@@ -17,37 +17,40 @@ scores as scripts/bench_single.py), per channel:
   among the 10% least confident.
 - channels at their true level: channels whose most common rollover difference from the truth is 0 *without*
   aligning offsets (what the anchoring of ``k = 0`` decides), for the method's result and for the truth re-anchored
-  by :func:`torch_modulo.singleshot.graphcut.anchor_k` (a perfect solver); in the JSON summary.
+  by :func:`torch_modulo.singleshot.anchor.anchor_k` (a perfect solver); in the JSON summary.
 - with ``--priors``: for truncated-linear pair potentials ``min(|I_i - I_j|, T)`` (8-neighbourhood; T = 8, 32
   and 128 counts: robust priors that stop charging for steps beyond T), the energy of the truth divided by the
   energy of the method's result. Above 1 means that the prior prefers the wrong result to the truth, so no
   optimiser of that prior can recover the scene.
 
-Examples:
-    python scripts/single_limits.py                      # both protocols, method="guided"
-    python scripts/single_limits.py --protocols A --method fast --max-scenes 5
-    python scripts/single_limits.py --protocols A --priors
+Examples (from the repository root):
+    python -m research.single_limits                      # both protocols, method="guided"
+    python -m research.single_limits --protocols A --method fast --max-scenes 5
+    python -m research.single_limits --protocols A --priors
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_single import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores, select_scenes  # noqa: E402
-
-from torch_modulo.singleshot import unwrap_confidence  # noqa: E402
-from torch_modulo.singleshot.energy import pair_indices, pair_offsets, pair_slices  # noqa: E402
-from torch_modulo.singleshot.graphcut import _components, anchor_k  # noqa: E402
-from torch_modulo.singleshot.init import integrate_wrapped, quality_guided_k, spanning_tree  # noqa: E402
+from research.common import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores, select_scenes
+from torch_modulo.singleshot import unwrap_confidence
+from torch_modulo.singleshot.anchor import anchor_k
+from torch_modulo.singleshot.grid import (
+    components,
+    integrate_wrapped,
+    pair_indices,
+    pair_offsets,
+    pair_slices,
+    spanning_tree,
+)
+from torch_modulo.singleshot.pathfollow import quality_guided_k
 
 
 def _pairs(shape: tuple[int, int], neighborhood: int) -> tuple[np.ndarray, np.ndarray]:
@@ -61,7 +64,7 @@ def largest_smooth_region(truth: np.ndarray) -> float:
     i, j = _pairs(truth.shape, 8)
     flat = truth.ravel()
     smooth = np.abs(flat[i] - flat[j]) < PERIOD // 2
-    _, labels = _components(truth.size, i[smooth], j[smooth])
+    _, labels = components(truth.size, i[smooth], j[smooth])
     return float(np.bincount(labels).max() / truth.size)
 
 

@@ -1,6 +1,7 @@
-"""Cheap initial estimates of the rollover counts ``k`` for the fast single-shot solver.
+"""Path following: the rollover counts ``k`` of a modulus image integrated along its most reliable pairs.
 
-:func:`quality_guided_k` is reliability-guided path following in the spirit of Herraez et al. (Applied
+This is the default single-shot method (``method="guided"``) and the starting point of ``"fast"`` on smooth
+images. :func:`quality_guided_k` is reliability-guided path following in the spirit of Herraez et al. (Applied
 Optics 2002, the algorithm behind scikit-image's ``unwrap_phase``): every pixel gets a reliability from the
 second differences of the wrapped image, neighbour pairs are joined from the most reliable down (Kruskal's
 algorithm, i.e. a minimum spanning tree), and ``k`` is integrated along the tree with the wrapped
@@ -16,24 +17,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from torch_modulo.singleshot.energy import pair_indices, pair_slices
+from torch_modulo.singleshot.grid import integrate_wrapped, pair_indices, pair_slices, spanning_tree, wrapped_difference
 
 __all__ = [
-    "integrate_wrapped",
-    "path_to_root",
     "quality_guided_colour_k",
     "quality_guided_k",
     "residue_density",
     "smooth_wrapped",
-    "spanning_tree",
-    "wrapped_difference",
 ]
-
-
-def wrapped_difference(d: np.ndarray, period: int) -> np.ndarray:
-    """Wrap differences into ``[-period / 2, period / 2)``: the difference a smooth image most likely had."""
-    half = period // 2
-    return np.mod(d + half, period) - half
 
 
 def residue_density(modulus: np.ndarray, bits: int) -> float:
@@ -77,35 +68,6 @@ def _second_difference_quality(modulus: np.ndarray, period: int) -> np.ndarray:
     return np.sqrt(acc)
 
 
-def path_to_root(parent: np.ndarray, values: np.ndarray, combine: np.ufunc = np.add) -> np.ndarray:
-    """Fold ``values`` from every node up to its root by pointer jumping (``log2`` of the tree depth passes).
-
-    ``combine`` is an associative ufunc: ``np.add`` sums the values on the path (integration), ``np.maximum`` takes
-    their largest (a bottleneck). Roots have ``parent[i] == i`` and must hold the neutral value (0).
-    """
-    parent = parent.copy()
-    total = values.copy()
-    while True:
-        grand = parent[parent]
-        if np.array_equal(grand, parent):
-            return total
-        total = combine(total, total[parent])
-        parent = grand
-
-
-def spanning_tree(n: int, first: np.ndarray, second: np.ndarray, weights: np.ndarray, root: int = 0) -> np.ndarray:
-    """Parent of every node in the minimum spanning tree of the pairs ``(first, second)``, rooted at ``root``.
-
-    ``weights`` must be > 0 (scipy reads 0 as "no edge"). A node the pairs do not reach is its own parent.
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
-
-    tree = minimum_spanning_tree(coo_matrix((weights, (first, second)), shape=(n, n)).tocsr())
-    _, pred = breadth_first_order(tree, root, directed=False, return_predecessors=True)
-    return np.where(pred < 0, np.arange(n), pred)
-
-
 def _reliability_tree(difficulty: np.ndarray) -> np.ndarray:
     """Parent of every pixel in the most reliable spanning tree (Kruskal on 4-neighbour pairs), rooted at pixel 0.
 
@@ -123,14 +85,6 @@ def _reliability_tree(difficulty: np.ndarray) -> np.ndarray:
         # Kruskal joins the most reliable pair first: weight = 1 / (R_i + R_j) > 0 (zero means "no edge").
         weights.append((1.0 / (inv_d[first] + inv_d[second])).ravel())
     return spanning_tree(h * w, np.concatenate(rows), np.concatenate(cols), np.concatenate(weights))
-
-
-def integrate_wrapped(modulus: np.ndarray, parent: np.ndarray, period: int) -> np.ndarray:
-    """``k`` along the tree: ``I_i - I_parent`` equals the wrapped difference of the modulus (integer or real)."""
-    flat = modulus.ravel()
-    d = flat - flat[parent]
-    step = np.rint((wrapped_difference(d, period) - d) / period).astype(np.int64)
-    return path_to_root(parent, step).reshape(modulus.shape)
 
 
 def smooth_wrapped(modulus: np.ndarray, period: int, sigma: float) -> np.ndarray:
@@ -163,9 +117,8 @@ def quality_guided_k(modulus: np.ndarray, bits: int) -> np.ndarray:
 def quality_guided_colour_k(moduli: np.ndarray, bits: int, denoise: float = 0.0) -> np.ndarray:
     """Path following for the channels of one image on one shared tree: reliabilities summed over channels.
 
-    With one channel this is :func:`quality_guided_k`. On the dev scenes under protocol B (RGB) sharing the tree
-    raised exact-k from 89.71% to 91.05% and PSNR from 26.08 to 26.58 dB against per-channel trees
-    (docs/singleshot.md).
+    With one channel this is :func:`quality_guided_k`. A step that is steep in one channel is avoided in all of
+    them, which helps where an edge that rolls one channel over is visible in another.
 
     With ``denoise > 0`` the tree and the integration use the wrapped images smoothed by :func:`smooth_wrapped`
     (Gaussian of ``denoise`` pixels), and each pixel then takes the ``k`` that puts its own count nearest to the

@@ -1,13 +1,14 @@
-"""Research harness for single-shot unwrapping on real HDR scenes (issue 4).
+"""Research harness for single-shot unwrapping on real HDR scenes: the natural-image model against baselines.
 
-Builds protocols A and B of ../shared/BENCHMARKS.md from every scene under ``--data`` (all folders), runs one or
-more unwrapping methods and prints exact-k, PSNR (peak 4095) and seconds per megapixel per channel per scene,
-then a summary and a JSON line.
+Builds protocols A and B (:mod:`torch_modulo.protocols`) from every scene under ``--data`` (all folders), runs one
+or more unwrapping methods (``natural``: :mod:`research.natural`; ``qg``: path following per channel; ``paper``;
+``skimage``) and prints exact-k, PSNR (peak 4095, offsets not aligned) and seconds per megapixel per channel per
+scene, then a summary and a JSON line.
 
-Examples:
-    python scripts/research_single.py --methods natural --protocols A B
-    python scripts/research_single.py --methods paper natural skimage --max-scenes 6 --split tune
-    python scripts/research_single.py --methods natural --opt potential=linear --energy-check
+Examples (from the repository root):
+    python -m research.harness --methods natural --protocols A B
+    python -m research.harness --methods paper natural skimage --max-scenes 6 --split tune
+    python -m research.harness --methods natural --opt potential=linear --energy-check
 
 Splits: scenes are sorted by path; ``--split tune`` keeps the even-indexed ones, ``--split held`` the odd ones,
 ``all`` (default) every scene. Tuning was done on ``tune`` only.
@@ -25,10 +26,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from research.common import DATA
 from torch_modulo import protocols
 
-ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT.parent / "shared" / "data" / "hdr"
 CACHE = Path(os.environ.get("TM_RESEARCH_CACHE", "/tmp/tm_research_cache"))
 
 
@@ -62,7 +62,7 @@ def protocol_b(rgb: np.ndarray, share: float = 0.2) -> np.ndarray:
 
 def run_method(name: str, modulus: np.ndarray, bits: int, opts: dict) -> tuple[np.ndarray, dict]:
     if name == "natural":
-        from torch_modulo.singleshot.natural import unwrap_natural
+        from research.natural import unwrap_natural
 
         return unwrap_natural(modulus, bits, **opts)
     if name == "skimage":
@@ -79,8 +79,8 @@ def run_method(name: str, modulus: np.ndarray, bits: int, opts: dict) -> tuple[n
             out[c] = modulus[c] + period * k
         return out, {}
     if name == "qg":
-        from torch_modulo.singleshot.graphcut import anchor_k
-        from torch_modulo.singleshot.init import quality_guided_k
+        from torch_modulo.singleshot.anchor import anchor_k
+        from torch_modulo.singleshot.pathfollow import quality_guided_k
 
         period = 1 << bits
         out = np.empty_like(modulus)
@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
                     sec=sec,
                 )
                 if args.energy_check and method == "natural":
-                    from torch_modulo.singleshot.natural import natural_energy
+                    from research.natural import natural_energy
 
                     eo = {k: v for k, v in o.items() if k != "return_confidence"}
                     row["e_truth"] = natural_energy(truth, bits, **eo)

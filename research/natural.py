@@ -1,8 +1,11 @@
 """Single-shot unwrapping for natural scenes: a log-domain image model, colour coupling and region moves.
 
+Research code, not part of the package (README.md, "A natural-image model"): every model tried here found
+wrong solutions of lower energy than the truth.
+
 The paper's energy (Eqs. 3, 5) penalises linear differences of the restored image ``I = I_m + k 2^N`` (Eq. 2).
 On real photographs it prefers wrong solutions: at high counts a real edge is hundreds of counts, and the
-quadratic tail of Eq. 5 pulls bright objects down to their background (../shared/BENCHMARKS.md). This module
+quadratic tail of Eq. 5 pulls bright objects down to their background. This module
 replaces the model, keeping the move-making idea of Sec. 4.2:
 
 - **Log-domain prior.** The image is modelled through ``u = log(I + c)``; neighbouring differences of ``u`` follow
@@ -16,7 +19,7 @@ replaces the model, keeping the move-making idea of Sec. 4.2:
   explained by the others (channel ratios stay nearly constant across such edges). Channels are solved in turn
   (block coordinate descent), each seeing the others as fixed.
 - **Bounds.** ``k >= 0``, and with ``max_count`` (a sensor that saturates) ``I_m + k 2^N <= max_count``.
-- **Optimiser.** Quality-guided initial ``k`` (Herraez et al. 2002, :mod:`torch_modulo.singleshot.init`), then
+- **Optimiser.** Quality-guided initial ``k`` (Herraez et al. 2002, :mod:`torch_modulo.singleshot.pathfollow`), then
   binary moves ``k <- k + t delta`` (``t = +-1, +-2, ...``) solved by max-flow on contracted graphs: regions of
   the current restored image (pixels joined by ``|I_i - I_j| <= link``) move together, from coarse (large
   ``link``) to the pixel grid. Each move's pair terms are made submodular by dropping the non-representable part
@@ -27,11 +30,11 @@ replaces the model, keeping the move-making idea of Sec. 4.2:
 The faithful solver of the paper stays in :mod:`torch_modulo.singleshot.graphcut`; ``potential="linear"`` here
 runs the paper's Eq. 5 through this optimiser for comparison.
 
-Status (measured, docs/singleshot.md): on the dev scenes every model tried here (Student-t and Laplace
-log-domain potentials with and without the Jacobian, colour coupling, the paper's Eq. 5) gives the solution the
-optimiser finds a LOWER energy than the truth, and the refinement loses exact-k against its own initialisation.
-The default is therefore the initialisation alone (quality-guided ``k`` with the saturation bound, ``links=()``);
-the refinement is opt-in (``links=(64, 16, 0)``) for research, and slow (30-300 s per megapixel and channel).
+Status (README.md): on the dev scenes every model tried here (Student-t and Laplace log-domain potentials with
+and without the Jacobian, colour coupling, the paper's Eq. 5) gives the solution the optimiser finds a LOWER
+energy than the truth, and the refinement loses exact-k against its own initialisation. The default is therefore
+the initialisation alone (quality-guided ``k`` with the saturation bound, ``links=()``); the refinement is opt-in
+(``links=(64, 16, 0)``), and slow.
 """
 
 from __future__ import annotations
@@ -45,12 +48,35 @@ import numpy as np
 import torch
 from torch import nn
 
-from torch_modulo._checks import check_bits, check_finite, check_floating, check_image_shape
-from torch_modulo.singleshot.energy import EnergyParams, _potential_np, pair_indices, pair_offsets
+from torch_modulo.singleshot.anchor import anchor_k
+from torch_modulo.singleshot.energy import EnergyParams, potential_np
+from torch_modulo.singleshot.grid import pair_indices, pair_offsets
+from torch_modulo.singleshot.pathfollow import quality_guided_k
 
 __all__ = ["NaturalOptions", "NaturalUnwrap", "natural_energy", "unwrap_natural", "unwrap_natural_torch"]
 
 _BIG = 1e9
+
+
+def _check_bits(bits: object) -> int:
+    """The bit depth as ``int`` in [1, 52]; raises naming the value."""
+    if isinstance(bits, bool) or not isinstance(bits, int | np.integer):
+        raise TypeError(f"bits must be an integer; got {bits!r}")
+    if not 1 <= bits <= 52:
+        raise ValueError(f"bits must be in [1, 52]; got {bits}")
+    return int(bits)
+
+
+def _check_tensor(modulus: object) -> torch.Tensor:
+    """A finite floating tensor of 2 to 4 dimensions; raises naming what is wrong."""
+    if not isinstance(modulus, torch.Tensor) or not modulus.is_floating_point():
+        got = modulus.dtype if isinstance(modulus, torch.Tensor) else type(modulus).__name__
+        raise TypeError(f"modulus must be a floating-point tensor; got {got}")
+    if not 2 <= modulus.ndim <= 4:
+        raise ValueError(f"modulus must be (B, C, H, W), (C, H, W) or (H, W); got shape {tuple(modulus.shape)}")
+    if not bool(torch.isfinite(modulus).all()):
+        raise ValueError("modulus must be finite; got NaN or infinite values")
+    return modulus
 
 
 @dataclass(frozen=True)
@@ -70,7 +96,7 @@ class NaturalOptions:
         neighborhood: 4 or 8.
         links: region links in counts, coarse to fine, for the model-based refinement; 0 means the pixel grid.
             Empty (the default) skips the refinement: on the dev scenes every refinement tried lowered the
-            model energy below the truth's and lost exact-k (docs/singleshot.md).
+            model energy below the truth's and lost exact-k (README.md).
         max_step: the largest move step ``t`` in periods.
         max_count: the sensor's largest count (saturation) or ``None`` for unbounded.
         rounds: colour rounds (each solves every channel once).
@@ -170,7 +196,7 @@ class _Model:
     def pair(self, a: np.ndarray, b: np.ndarray, guides: list[np.ndarray]) -> np.ndarray:
         """Cost of pairs with restored values ``a`` and ``b``; ``guides`` are the other channels' du."""
         if self.paper is not None:
-            return _potential_np(a - b, self.paper)
+            return potential_np(a - b, self.paper)
         du = self.u(a) - self.u(b)
         if self.o.smooth <= 0:
             cost = np.zeros_like(du)
@@ -235,7 +261,7 @@ def natural_energy(restored: np.ndarray, bits: int = 8, **options: object) -> fl
     if restored.ndim != 3:
         raise ValueError(f"restored must be (C, H, W); got shape {restored.shape}")
     c, h, w = restored.shape
-    model = _Model(opts, 1 << check_bits(bits, torch.float64))
+    model = _Model(opts, 1 << _check_bits(bits))
     pairs = _Pairs(h, w, opts.neighborhood)
     total = 0.0
     for ch in range(c):
@@ -460,12 +486,9 @@ def unwrap_natural(
         >>> bool(np.array_equal(restored, ramp))
         True
     """
-    from torch_modulo.singleshot.graphcut import anchor_k
-    from torch_modulo.singleshot.init import quality_guided_k
-
     start = time.perf_counter()
     opts = NaturalOptions.make(**options)
-    bits = check_bits(bits, torch.float64)
+    bits = _check_bits(bits)
     m = np.asarray(modulus)
     if m.dtype == bool or not np.issubdtype(m.dtype, np.number) or np.iscomplexobj(m):
         raise TypeError(f"modulus must be a real numeric array; got dtype {m.dtype}")
@@ -526,9 +549,7 @@ def unwrap_natural_torch(modulus: torch.Tensor, bits: int = 8, **options: object
         >>> unwrap_natural_torch(x).tolist()
         [[[10.0, 100.0, 200.0, 286.0]]]
     """
-    check_floating(modulus, "modulus")
-    check_image_shape(modulus, "modulus", 2, 4)
-    check_finite(modulus, "modulus")
+    _check_tensor(modulus)
     x = modulus.detach().to("cpu", torch.float64).numpy()
     if modulus.ndim == 4:
         out = np.stack([unwrap_natural(img, bits, **options)[0] for img in x]) if len(x) else x.copy()
@@ -547,7 +568,7 @@ class NaturalUnwrap(nn.Module):
 
     def __init__(self, bits: int = 8, **options: object) -> None:
         super().__init__()
-        self.bits = check_bits(bits, torch.float64)
+        self.bits = _check_bits(bits)
         NaturalOptions.make(**options)
         self.options = dict(options)
 

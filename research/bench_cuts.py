@@ -1,6 +1,6 @@
 """Where the paper's graph cut spends its time: one global min cut near the optimum vs at ``k = 0``, and tiles.
 
-For each named scene under protocol A (same scenes and downsampling as scripts/bench_single.py), 8 bits:
+For each named scene under protocol A (same scenes and downsampling as benchmarks/bench_single.py), 8 bits:
 
 1. the paper's loop (``solve_pixels`` from ``k = 0``): seconds per megapixel, cuts, final energy;
 2. one global step-1 cut timed at the state the loop converged to, and one at ``k = 0`` (s/MP);
@@ -10,31 +10,29 @@ For each named scene under protocol A (same scenes and downsampling as scripts/b
 This is the measurement behind "Limits" in docs/singleshot.md: one confirming global cut on a textured scene
 costs more than the whole <= 5 s/MP budget.
 
-Example:
-    python scripts/bench_cuts.py --scenes CS_Warwick CadesCove Flowers_rgb park
+Example (from the repository root):
+    python -m research.bench_cuts --scenes CS_Warwick CadesCove Flowers_rgb park
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_single import DATA, PERIOD, load, protocol_a, select_scenes  # noqa: E402
-
-from torch_modulo.singleshot.energy import EnergyParams, pair_offsets  # noqa: E402
-from torch_modulo.singleshot.graphcut import MoveStats, _pixel_move, _span, plane_energy, solve_pixels, solve_tiles  # noqa: E402
+from research.common import DATA, PERIOD, load, protocol_a, select_scenes
+from torch_modulo.singleshot.energy import EnergyParams
+from torch_modulo.singleshot.graphcut import MoveStats, pixel_move, plane_energy, solve_pixels, solve_tiles
+from torch_modulo.singleshot.grid import pair_offsets
 
 TILES = (32, 64, 128, 256)
 
 
-def measure(modulus: np.ndarray) -> dict:
+def measure(modulus: np.ndarray, tiles: tuple[int, ...] = TILES) -> dict:
+    """Seconds per megapixel of the paper's loop, of one global cut (converged and at k = 0) and of tiles."""
     p = EnergyParams.make(8)
     offsets = pair_offsets(8)
     mp = modulus.size / 1e6
@@ -44,14 +42,14 @@ def measure(modulus: np.ndarray) -> dict:
     loop_s = time.perf_counter() - start
     energy = plane_energy(converged, p, offsets)
     start = time.perf_counter()
-    _pixel_move(converged, p, offsets, 1, _span(converged))
+    pixel_move(converged, p, offsets, 1)
     cut_converged_s = time.perf_counter() - start
     start = time.perf_counter()
-    _pixel_move(modulus, p, offsets, 1, _span(modulus))
+    pixel_move(modulus, p, offsets, 1)
     cut_zero_s = time.perf_counter() - start
     start = time.perf_counter()
     tiled = modulus.copy()
-    for tile in TILES:
+    for tile in tiles:
         tiled = solve_tiles(tiled, p, offsets, tile=tile)
     tiles_s = time.perf_counter() - start
     return {

@@ -1,6 +1,6 @@
-"""Research (issue 4): can a model of where the steep steps are, fitted on dev scenes, guide single-shot unwrapping?
+"""Can a model of where the steep steps are, fitted on dev scenes, guide single-shot unwrapping?
 
-Two variants, both measured under protocol A (see docs/singleshot.md, "What was tried"):
+Two variants, both measured under protocol A (README.md, "A learned steep-step model"):
 
 - ``tree``: path following on a spanning tree whose pair weights are ``-log P(smooth | features)`` from a small
   model (18 local features of the wrapped image around a 4-neighbour pair -> 16 tanh units -> P(the true step is
@@ -11,18 +11,17 @@ Two variants, both measured under protocol A (see docs/singleshot.md, "What was 
   minimised from the ``tree`` result by binary graph-cut moves (PyMaxflow), reporting the model energy of the
   result and of the truth.
 
-The model is research code: it is not part of the package. Takes about 10 minutes (the fit is full-batch Adam).
+The model is research code: it is not part of the package. The fit is full-batch Adam (minutes).
 
-Examples:
-    python scripts/research_edges.py                      # fit, then both variants
-    python scripts/research_edges.py --cut-scenes 10      # the graph cut on the first 10 scenes only
+Examples (from the repository root):
+    python -m research.edges                      # fit, then both variants
+    python -m research.edges --cut-scenes 10      # the graph cut on the first 10 scenes only
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -31,13 +30,10 @@ import numpy as np
 import torch
 from scipy.ndimage import uniform_filter
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_single import DATA, PERIOD, load, protocol_a, scores, select_scenes  # noqa: E402
-
-from torch_modulo.singleshot.energy import pair_indices  # noqa: E402
-from torch_modulo.singleshot.graphcut import _PairTerms  # noqa: E402
-from torch_modulo.singleshot.init import integrate_wrapped, quality_guided_k, spanning_tree, wrapped_difference  # noqa: E402
+from research.common import DATA, PERIOD, load, protocol_a, scores, select_scenes
+from torch_modulo.singleshot.graphcut import PairTerms
+from torch_modulo.singleshot.grid import integrate_wrapped, pair_indices, spanning_tree, wrapped_difference
+from torch_modulo.singleshot.pathfollow import quality_guided_k
 
 HALF = PERIOD // 2
 N_FEATURES = 18
@@ -186,7 +182,7 @@ class PairCosts:
             t = (flat[i] - flat[j] + c0) * s
             e0 = self._cost(c, t)
             a, b = self._cost(c, t + step * s) - e0, self._cost(c, t - step * s) - e0
-            cij, cji, m = _PairTerms._decompose(a, b)
+            cij, cji, m = PairTerms.decompose(a, b)
             graph.add_edges(i, j, cij, cji)
             unary += np.bincount(i, weights=m, minlength=self.n) - np.bincount(j, weights=m, minlength=self.n)
         nz = np.flatnonzero(unary)
@@ -208,7 +204,7 @@ class PairCosts:
 
 
 def score(modulus: np.ndarray, k: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """exact-k and PSNR of ``modulus + k 2**bits`` (offsets aligned, as in bench_single.py)."""
+    """exact-k and PSNR of ``modulus + k 2**bits`` (offsets aligned, as in the benchmarks)."""
     restored = (modulus + PERIOD * (k - k.min())).astype(np.float64)
     return scores(restored[None], truth[None].astype(np.float64))
 

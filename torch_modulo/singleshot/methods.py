@@ -1,0 +1,308 @@
+"""The single-shot methods by name: one registry entry per method, and the task that solves a group of planes.
+
+A method is a :class:`Method`: its solver, its options (each with a default and a check) and whether it solves
+the channels of an image together. :data:`REGISTRY` maps names to methods, and everything else (the option
+checks of :func:`~torch_modulo.singleshot.unwrap_single`, the grouping of planes into worker tasks,
+:data:`METHODS`) is derived from it, so a new method is one entry here.
+
+A solver takes a group of planes: ``(moduli (G, H, W) int64, spec, one MoveStats per plane) -> restored
+(G, H, W) int64``, where the group is one plane for the methods that solve every channel alone and all channels
+of an image for the methods with ``joint_channels``. It may leave ``k`` with any global constant:
+:func:`solve_group` anchors every plane afterwards (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from torch_modulo._checks import check_choice, check_flag, check_int, check_real
+from torch_modulo.singleshot.anchor import anchor_k
+from torch_modulo.singleshot.energy import EnergyParams
+from torch_modulo.singleshot.graphcut import MoveStats, plane_energy, solve_fast, solve_pixels
+from torch_modulo.singleshot.grid import pair_offsets
+from torch_modulo.singleshot.pathfollow import quality_guided_colour_k, quality_guided_k, residue_density
+
+__all__ = [
+    "AUTO_RESIDUES",
+    "METHODS",
+    "REGISTRY",
+    "Method",
+    "Option",
+    "SolverSpec",
+    "fast_start",
+    "make_spec",
+    "solve_group",
+    "solve_plane",
+]
+
+#: ``init="auto"`` of ``"fast"`` starts from path following when fewer than this share of 2 x 2 loops hold a
+#: residue.
+AUTO_RESIDUES = 1e-3
+
+
+@dataclass(frozen=True)
+class Option:
+    """One option of a method.
+
+    Attributes:
+        default: the value used when the caller does not give one.
+        check: ``check(value, name)`` returns the value normalised (e.g. ``np.float32`` to ``float``) or raises
+            ``TypeError`` / ``ValueError`` naming it (the checks of ``torch_modulo._checks``).
+    """
+
+    default: Any
+    check: Callable[[Any, str], Any]
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    """Everything a worker needs to solve one group of planes (picklable).
+
+    Attributes:
+        method: a key of :data:`REGISTRY`.
+        params: the potential of Eq. 5.
+        neighborhood: 8 or 4.
+        sigma: the paper's larger step (1 disables it).
+        max_iter: the most global cuts.
+        options: method-specific options as sorted ``(name, value)`` pairs (checked by :func:`make_spec`).
+        anchor_fraction: the smallest region (share of the pixels) that may anchor ``k = 0`` (see
+            :func:`~torch_modulo.singleshot.anchor.anchor_k`: small regions anchor only with mostly smooth
+            borders).
+    """
+
+    method: str
+    params: EnergyParams
+    neighborhood: int = 8
+    sigma: int = 2
+    max_iter: int = 1000
+    options: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
+    anchor_fraction: float = 1e-3
+
+    def option(self, name: str) -> Any:
+        """The value of option ``name``: the caller's, else the method's default."""
+        return dict(self.options).get(name, REGISTRY[self.method].options[name].default)
+
+
+#: ``(moduli (G, H, W) int64, spec, one MoveStats per plane) -> restored (G, H, W) int64``.
+GroupSolver = Callable[[np.ndarray, SolverSpec, list[MoveStats]], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registry entry: how a method solves, and what it accepts.
+
+    Attributes:
+        solve: the group solver (see the module docstring).
+        options: the method's options by name.
+        joint_channels: the solver takes all channels of an image at once (else one plane at a time).
+    """
+
+    solve: GroupSolver
+    options: Mapping[str, Option] = field(default_factory=dict)
+    joint_channels: bool = False
+
+
+def _per_plane(solver: Callable[[np.ndarray, SolverSpec, MoveStats], np.ndarray]) -> GroupSolver:
+    """Turn a one-plane solver into a group solver (each plane alone)."""
+
+    def solve(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
+        return np.stack([solver(m, spec, st) for m, st in zip(moduli, stats, strict=True)])
+
+    solve.__doc__ = solver.__doc__
+    return solve
+
+
+def _solve_paper(modulus: np.ndarray, spec: SolverSpec, stats: MoveStats) -> np.ndarray:
+    """The paper (Sec. 4.2): from ``k = 0``, step-1 moves, then step ``sigma``, until the energy stops dropping."""
+    offsets = pair_offsets(spec.neighborhood)
+    return solve_pixels(modulus, spec.params, offsets, sigma=spec.sigma, max_iter=spec.max_iter, stats=stats)
+
+
+def fast_start(modulus: np.ndarray, bits: int, init: str = "auto") -> np.ndarray:
+    """The starting point of ``"fast"``: int64 ``modulus + k 2**bits`` for the ``init`` option.
+
+    ``"zeros"``: ``k = 0`` (as the paper); ``"quality"``: path following
+    (:func:`~torch_modulo.singleshot.pathfollow.quality_guided_k`); ``"auto"``: path following when the wrapped
+    image has (almost) no residues (fewer than :data:`AUTO_RESIDUES` of its 2 x 2 loops), i.e. when it is smooth
+    enough for path following to be right, else ``k = 0``.
+
+    Example:
+        >>> fast_start(np.array([[200, 10, 60]]), 8).tolist()  # smooth: path following
+        [[200, 266, 316]]
+    """
+    restored = modulus.astype(np.int64)
+    if init == "auto":
+        init = "quality" if residue_density(modulus, bits) < AUTO_RESIDUES else "zeros"
+    if init == "quality":
+        restored = restored + (1 << bits) * quality_guided_k(modulus, bits)
+    return restored
+
+
+def _solve_fast(modulus: np.ndarray, spec: SolverSpec, stats: MoveStats) -> np.ndarray:
+    """The paper's energy and moves on a cheaper schedule: :func:`fast_start`, then
+    :func:`~torch_modulo.singleshot.graphcut.solve_fast` (global moves to ``rel_tol``, then tiles)."""
+    p = spec.params
+    return solve_fast(
+        fast_start(modulus, p.bits, spec.option("init")),
+        p,
+        pair_offsets(spec.neighborhood),
+        sigma=spec.sigma,
+        max_iter=spec.max_iter,
+        rel_tol=float(spec.option("rel_tol")),
+        tile=int(spec.option("tile")),
+        stats=stats,
+    )
+
+
+def _solve_guided(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
+    """Reliability-guided path following (Herraez et al. 2002), no graph cut; with ``colour`` the channels of an
+    image share one tree whose reliabilities sum the second differences of all channels; ``denoise`` smooths the
+    wrapped images first (:func:`~torch_modulo.singleshot.pathfollow.smooth_wrapped`)."""
+    p = spec.params
+    start = time.perf_counter()
+    denoise = float(spec.option("denoise"))
+    if spec.option("colour"):
+        k = quality_guided_colour_k(moduli, p.bits, denoise)
+    else:
+        k = np.stack([quality_guided_colour_k(m[None], p.bits, denoise)[0] for m in moduli])
+    restored = moduli + p.period * k
+    for plane, st in zip(restored, stats, strict=True):
+        st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
+        st.tick("guided", start)
+    return restored
+
+
+def _check_tile(value: object, name: str) -> int:
+    tile = check_int(value, name, 0)
+    if tile == 1:
+        raise ValueError(f"{name} must be 0 (no local moves) or >= 2; got 1")
+    return tile
+
+
+def _check_init(value: object, name: str) -> str:
+    return check_choice(value, name, ("auto", "zeros", "quality"))
+
+
+def _check_nonnegative(value: object, name: str) -> float:
+    return check_real(value, name, 0)
+
+
+#: The methods by name; :data:`METHODS` and every option check derive from it.
+REGISTRY: Mapping[str, Method] = MappingProxyType(
+    {
+        "guided": Method(
+            solve=_solve_guided,
+            options={"colour": Option(True, check_flag), "denoise": Option(0.0, _check_nonnegative)},
+            joint_channels=True,
+        ),
+        "fast": Method(
+            solve=_per_plane(_solve_fast),
+            options={
+                "init": Option("auto", _check_init),
+                "rel_tol": Option(3e-4, _check_nonnegative),
+                "tile": Option(64, _check_tile),
+            },
+        ),
+        "paper": Method(solve=_per_plane(_solve_paper)),
+    }
+)
+
+#: The names of the methods, the default first.
+METHODS: tuple[str, ...] = tuple(REGISTRY)
+
+
+def _check_options(method: str, options: Mapping[str, Any]) -> tuple[tuple[str, Any], ...]:
+    allowed = REGISTRY[method].options
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        known = ", ".join(sorted(allowed)) or "none"
+        raise TypeError(f"method {method!r} does not take option(s) {', '.join(unknown)}; it takes: {known}")
+    return tuple(sorted((name, allowed[name].check(value, name)) for name, value in options.items()))
+
+
+def make_spec(
+    bits: int,
+    method: str,
+    neighborhood: int,
+    a1: float,
+    a2: float,
+    x0: float | None,
+    sigma: int,
+    max_iter: int,
+    options: Mapping[str, Any],
+) -> SolverSpec:
+    """Check the settings of :func:`~torch_modulo.singleshot.unwrap_single` once and bundle them.
+
+    Raises:
+        TypeError: a setting of the wrong type, or an option the method does not take.
+        ValueError: an unknown method or a value out of range.
+
+    Example:
+        >>> make_spec(8, "fast", 8, 0.1, 1e-5, None, 2, 1000, {"tile": 32}).options
+        (('tile', 32),)
+    """
+    check_choice(method, "method", METHODS)
+    params = EnergyParams.make(bits, a1, a2, x0)
+    pair_offsets(neighborhood)
+    return SolverSpec(
+        method=method,
+        params=params,
+        neighborhood=int(neighborhood),
+        sigma=check_int(sigma, "sigma", 1),
+        max_iter=check_int(max_iter, "max_iter", 0),
+        options=_check_options(method, options),
+    )
+
+
+def solve_group(moduli: np.ndarray, spec: SolverSpec) -> list[tuple[np.ndarray, dict[str, Any]]]:
+    """Solve a group of planes (one plane, or the channels of one image) and anchor each: the worker task.
+
+    Top-level, numpy in, numpy and plain data out.
+
+    Args:
+        moduli: (G, H, W) integer-valued array in ``[0, 2**bits)``.
+        spec: what to solve and how.
+
+    Returns:
+        One ``(restored, info)`` per plane: the restored counts (int64, ``k >= 0``, darkest large region at
+        ``k = 0``) and a dict with ``energies`` (before the first move and after each accepted one), ``steps``,
+        ``cuts``, ``seconds`` (the group's wall time, split evenly over its planes) and ``energy`` (of the
+        returned counts).
+    """
+    start = time.perf_counter()
+    moduli = np.asarray(moduli, dtype=np.int64)
+    stats = [MoveStats() for _ in moduli]
+    solved = REGISTRY[spec.method].solve(moduli, spec, stats)
+    offsets = pair_offsets(spec.neighborhood)
+    out = []
+    for modulus, restored, st in zip(moduli, solved, stats, strict=True):
+        k = anchor_k(
+            (restored - modulus) // spec.params.period, spec.anchor_fraction, modulus=modulus, bits=spec.params.bits
+        )
+        restored = modulus + spec.params.period * k
+        out.append(
+            (
+                restored,
+                {
+                    "energies": [float(e) for e in st.energies],
+                    "steps": [int(s) for s in st.steps],
+                    "cuts": int(st.cuts),
+                    "energy": float(plane_energy(restored, spec.params, offsets)),
+                },
+            )
+        )
+    seconds = (time.perf_counter() - start) / max(1, len(out))
+    for _, info in out:
+        info["seconds"] = seconds
+    return out
+
+
+def solve_plane(modulus: np.ndarray, spec: SolverSpec) -> tuple[np.ndarray, dict[str, Any]]:
+    """Solve one (H, W) plane (see :func:`solve_group`)."""
+    return solve_group(np.asarray(modulus)[None], spec)[0]
