@@ -1,6 +1,7 @@
-"""Helpers shared by the figure scripts in examples/: scenes, the benchmark protocols, figure output, verdicts.
+"""Helpers shared by the figure scripts in examples/: finding scenes, figure output, tables and verdicts.
 
-Not part of the library: the scripts import it as ``_common`` (they run with examples/ on ``sys.path``).
+Not part of the library: the scripts import it as ``_common`` (they run with examples/ on ``sys.path``). Loading
+scenes, the benchmark protocols and the scores come from :mod:`torch_modulo.protocols`, as in the benchmarks.
 """
 
 from __future__ import annotations
@@ -19,18 +20,19 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-import torch.nn.functional as F  # noqa: E402
 from PIL import Image  # noqa: E402
 
+from torch_modulo import protocols  # noqa: E402
 from torch_modulo.assets import default_scene_path  # noqa: E402
-from torch_modulo.io import read_image  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The real HDR scenes beside the project (never copied into it); see its README.
-SHARED_HDR = ROOT.parent / "shared" / "data" / "hdr"
+#: The real HDR scenes beside the project (never copied into it); the tests point it elsewhere.
+SCENES_DIR = protocols.DEV_SCENES
 DEFAULT_OUT = ROOT / "examples" / "out"
-#: Luminance weights of linear Rec.709 primaries (BENCHMARKS.md protocol A).
-LUMA = (0.2126, 0.7152, 0.0722)
+#: The name that asks for the scene embedded in the package.
+EMBEDDED = "embedded"
+#: The embedded scene's label in tables and titles.
+EMBEDDED_LABEL = "apartment (embedded)"
 #: Largest PNG the docs embed.
 MAX_PNG_BYTES = 400 * 1024
 
@@ -48,59 +50,42 @@ def parser(description: str) -> argparse.ArgumentParser:
 # --------------------------------------------------------------------------------------------------------------------
 
 
-def scene_path(name: str) -> Path:
-    """A scene by its path under ../shared/data/hdr ("hdr-samples/memorial.hdr"); the embedded CC0 scene
-    (Poly Haven "apartment") when the shared folder is absent or the name is "embedded"."""
-    if name == "embedded":
-        return default_scene_path()
-    path = SHARED_HDR / name
-    if path.is_file():
-        return path
-    if not SHARED_HDR.is_dir():
-        return default_scene_path()
-    raise FileNotFoundError(f"scene {name!r} not found under {SHARED_HDR}")
+def find_scenes(names: Sequence[str], *, required: bool = False, fallback: bool = True) -> list[tuple[str, Path]]:
+    """``(label, path)`` of the scenes of ``names`` that exist, each under its own name; the missing ones are printed.
 
+    Names are paths under :data:`SCENES_DIR` ("hdr-samples/memorial.hdr") or "embedded" (the CC0 scene shipped in
+    the package, Poly Haven "apartment"). A scene that is absent (a fresh clone has no scenes folder) is never
+    replaced under its name.
 
-def shared_available() -> bool:
-    return SHARED_HDR.is_dir()
+    Args:
+        names: the scenes a script wants.
+        required: the user named them: a missing scene is an error.
+        fallback: when none of them exists, use the embedded scene instead (under its own label).
 
-
-def load_scene(path: str | os.PathLike[str], max_side: int = 512) -> torch.Tensor:
-    """A radiance map as (1, 3, H, W) float64 >= 0, downsampled by whole-pixel area averaging (BENCHMARKS.md)
-    until its longer side is at most ``max_side``. NaN and negative values become 0; a grey file (with or without
-    alpha) gives three equal channels, and only the first three channels of others are kept."""
-    image = read_image(path, dtype=torch.float64)
-    assert isinstance(image, torch.Tensor)
-    image = torch.nan_to_num(image, nan=0.0, posinf=0.0, neginf=0.0).clamp_(min=0.0)
-    image = image[:1].expand(3, -1, -1) if image.shape[0] < 3 else image[:3]  # grey (+ alpha): first channel
-    x = image[None].contiguous()
-    h, w = x.shape[-2:]
-    factor = max(1, math.ceil(max(h, w) / max_side))
-    if factor > 1:
-        x = F.avg_pool2d(x[..., : h - h % factor, : w - w % factor], factor)
-    return x
-
-
-def luminance(rgb: torch.Tensor) -> torch.Tensor:
-    """Y = 0.2126 R + 0.7152 G + 0.0722 B of a (B, 3, H, W) tensor, as (B, 1, H, W)."""
-    w = torch.tensor(LUMA, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
-    return (rgb * w).sum(dim=1, keepdim=True)
-
-
-def protocol_a(hdr: torch.Tensor, in_bits: int = 12) -> torch.Tensor:
-    """BENCHMARKS.md protocol A: luminance scaled so that its 99.9th percentile is 2^in_bits - 1, clipped, floored.
-
-    Returns the true counts I, (1, 1, H, W) float64; the modulus image is ``I mod 2^N``.
+    Raises:
+        FileNotFoundError: ``required`` and a scene is missing.
     """
-    y = luminance(hdr)
-    top = float(2**in_bits - 1)
-    p = float(torch.quantile(y.flatten().float(), 0.999))
-    scale = top / p if p > 0 else 1.0
-    return torch.floor((y * scale).clamp(0.0, top))
+    found, missing = [], []
+    for name in names:
+        if name == EMBEDDED:
+            found.append((EMBEDDED_LABEL, default_scene_path()))
+        elif (SCENES_DIR / name).is_file():
+            found.append((Path(name).stem, SCENES_DIR / name))
+        else:
+            missing.append(name)
+    if missing and required:
+        raise FileNotFoundError(f"scene(s) not found under {SCENES_DIR}: {', '.join(missing)}")
+    if missing:
+        where = f"under {SCENES_DIR}" if SCENES_DIR.is_dir() else f"({SCENES_DIR} does not exist)"
+        print(f"missing {len(missing)} of {len(names)} scene(s) {where}: {', '.join(missing)}")
+        if not found and fallback:
+            print(f"using the embedded scene instead: {EMBEDDED_LABEL}")
+            found.append((EMBEDDED_LABEL, default_scene_path()))
+    return found
 
 
 def stops(x: torch.Tensor) -> float:
-    """Dynamic range log2(p99.9 / p0.1) of the positive values of ``x``, in stops (the data README's measure)."""
+    """Dynamic range log2(p99.9 / p0.1) of the positive values of ``x``, in stops."""
     v = x[x > 0].flatten().double()
     if v.numel() == 0:
         return 0.0

@@ -12,10 +12,10 @@ Two scenes, noise-free, float64:
 
 - a synthetic 24-stop ramp: radiance ``2^u`` with ``u`` running from -16 to 8 across the image, times a mild
   texture, so that the longest exposure reads 1 to 2^24 - 1 counts;
-- a real environment map with more than 24 stops (MultiResolution_StageEnvLatLong.exr from the OpenEXR sample
-  images, BSD-3, in ../shared/data/hdr/openexr-images: 20.2 stops from its 0.1th to its 99.9th percentile, 38 from
-  its darkest to its brightest non-zero pixel), RGB, scaled so that the shortest exposure just does not roll over;
-  the 0.13% of its pixels below one count at the longest exposure read 0 on both sensors.
+- a real environment map with more than 24 stops from its darkest to its brightest non-zero pixel
+  (MultiResolution_StageEnvLatLong.exr from the OpenEXR sample images, BSD-3, in the openexr-images folder of the
+  development scenes; skipped, and said so, when absent), RGB, scaled so that the shortest exposure just does not
+  roll over; its pixels below one count at the longest exposure read 0 on both sensors.
 
 Exposures 1 : 256 : 65536 (``plan_exposures(24, bits=8, max_ratio=256)``), 8-bit sensors. Modulo frames are
 unwrapped with :func:`torch_modulo.unwrap_multi` (robust and the paper's Eq. 6-7), intensity frames merged with
@@ -31,10 +31,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _common import load_scene, luminance, parser, save_figure, scene_path, shared_available, show, table, verdict
+from _common import find_scenes, parser, save_figure, show, table, verdict
 from matplotlib import pyplot as plt
 
-from torch_modulo import capture_intensity, capture_modulo, merge_intensity, plan_exposures, unwrap_multi
+from torch_modulo import capture_intensity, capture_modulo, merge_intensity, plan_exposures, protocols, unwrap_multi
+from torch_modulo.tonemap import luminance
 
 BITS = 8
 STOPS = 24
@@ -50,10 +51,10 @@ def ramp(height: int, width: int) -> torch.Tensor:
     return torch.exp2(u)
 
 
-def environment(max_side: int, exposures: list[float]) -> torch.Tensor:
+def environment(path: Path, max_side: int, exposures: list[float]) -> torch.Tensor:
     """The environment map, RGB, scaled so that its brightest value reads just under 2^BITS at the shortest
     exposure."""
-    hdr = load_scene(scene_path(SCENE), max_side)
+    hdr = protocols.load_scene(path, max_side)[None]
     top = float(hdr.max())
     return hdr * ((2**BITS - 1e-6) / (top * exposures[0]))
 
@@ -97,20 +98,7 @@ def _log_image(x: torch.Tensor, lo: float, hi: float) -> np.ndarray:
     return np.clip((torch.log2(y.clamp_min(2.0**lo))[0, 0].numpy() - lo) / (hi - lo), 0, 1)
 
 
-def main(argv: list[str] | None = None) -> dict[str, object]:
-    args = parser(__doc__.split("\n\n")[0]).parse_args(argv)
-    exposures = plan_exposures(STOPS, bits=BITS, max_ratio=2**BITS)
-    h, w = (32, 128) if args.quick else (192, 768)
-    scenes = {"24-stop ramp": ramp(h, w)}
-    if shared_available():
-        scenes["StageEnvLatLong"] = environment(128 if args.quick else 512, exposures)
-    results = {name: evaluate(radiance, exposures) for name, radiance in scenes.items()}
-
-    print(f"Claim: 3 captures of an {BITS}-bit sensor, exposures {exposures}, cover {STOPS} stops (noise-free)")
-    print(
-        f"(with ratios <= 2^N - 1, which leaves a margin for noise, plan_exposures takes "
-        f"{len(plan_exposures(STOPS, bits=BITS))} captures)"
-    )
+def print_table(results: dict[str, dict[str, object]]) -> None:
     rows = []
     for name, r in results.items():
         rows.append(
@@ -147,6 +135,9 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         ],
     )
 
+
+def draw(results: dict[str, dict[str, object]], exposures: list[float]) -> plt.Figure:
+    """One row per scene: log radiance, the three moduli, the modulo result and the relative errors."""
     fig, axes = plt.subplots(len(results), 4, figsize=(13.0, 2.9 * len(results)), dpi=90, squeeze=False)
     for i, (name, r) in enumerate(results.items()):
         lo = -16.0
@@ -184,6 +175,25 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         f"Three {BITS}-bit captures at ratio 256 cover 24 stops: modulo (exact counts) vs intensity", fontsize=9
     )
     fig.tight_layout(rect=(0, 0, 1, 0.96))
+    return fig
+
+
+def main(argv: list[str] | None = None) -> dict[str, object]:
+    args = parser(__doc__.split("\n\n")[0]).parse_args(argv)
+    exposures = plan_exposures(STOPS, bits=BITS, max_ratio=2**BITS)
+    h, w = (32, 128) if args.quick else (192, 768)
+    scenes = {"24-stop ramp": ramp(h, w)}
+    for name, path in find_scenes([SCENE], fallback=False):
+        scenes[name.removeprefix("MultiResolution_")] = environment(path, 128 if args.quick else 512, exposures)
+    results = {name: evaluate(radiance, exposures) for name, radiance in scenes.items()}
+
+    print(f"Claim: 3 captures of an {BITS}-bit sensor, exposures {exposures}, cover {STOPS} stops (noise-free)")
+    print(
+        f"(with ratios <= 2^N - 1, which leaves a margin for noise, plan_exposures takes "
+        f"{len(plan_exposures(STOPS, bits=BITS))} captures)"
+    )
+    print_table(results)
+    fig = draw(results, exposures)
     path = save_figure(fig, Path(args.out) / "claim_24_stops.png")
 
     main_result = results["24-stop ramp"]

@@ -10,13 +10,13 @@ normalised energy drop at each iteration for the scene of Fig. 4 (a synthetic ro
 unwrapping result is free of errors as compared to the ground truth in this test", and 6(b) the tone-mapped result.
 
 Here the scene is the embedded CC0 panorama (Poly Haven "apartment", a room with lamps and windows) under protocol A
-of BENCHMARKS.md (luminance scaled so that its 99.9th percentile is 4095, floored: 12-bit counts, 8-bit modulus).
-:func:`torch_modulo.unwrap_single` (``method="paper"``: from k = 0, binary moves while the energy drops) returns the
-energy after every accepted move (``return_info=True``); the intermediate states are the solver stopped after
-``max_iter`` minimum cuts (the solver is deterministic, so that is the state the full run passes through). Energy
-curves are also drawn for a few real scenes of ../shared/data/hdr and for the smooth surface of Fig. 2 scaled to 12
-bits, each with the energy of its true counts: where that lies above the curve's end, the paper's energy prefers a
-wrong answer.
+(:func:`torch_modulo.protocols.protocol_a`: luminance scaled so that its 99.9th percentile is 4095, floored: 12-bit
+counts, 8-bit modulus). :func:`torch_modulo.unwrap_single` (``method="paper"``: from k = 0, binary moves while the
+energy drops) returns the energy after every accepted move (``return_info=True``); the intermediate states are the
+solver stopped after ``max_iter`` minimum cuts (the solver is deterministic, so that is the state the full run
+passes through). Energy curves are also drawn for a few real scenes (those of the development scenes that are
+present; the missing ones are listed) and for the smooth surface of Fig. 2 scaled to 12 bits, each with the energy
+of its true counts: where that lies above the curve's end, the paper's energy prefers a wrong answer.
 """
 
 from __future__ import annotations
@@ -25,11 +25,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _common import load_scene, parser, protocol_a, save_figure, scene_path, shared_available, show, table, verdict
+from _common import EMBEDDED_LABEL, find_scenes, parser, save_figure, show, table, verdict
 from fig02_wrap_unwrap import surface
 from matplotlib import pyplot as plt
 
-from torch_modulo import exact_k_share
+from torch_modulo import exact_k_share, protocols
+from torch_modulo.assets import default_scene_path
 from torch_modulo.singleshot import potential, unwrap_energy, unwrap_single
 from torch_modulo.tonemap import tonemap_histogram
 
@@ -67,41 +68,14 @@ def intermediate_states(
     return out
 
 
-def main(argv: list[str] | None = None) -> dict[str, object]:
-    args = parser(__doc__.split("\n\n")[0]).parse_args(argv)
-    max_side = 128 if args.quick else 512
-    truth = protocol_a(load_scene(scene_path("embedded"), max_side))
-    main_run = energy_run(truth)
-    runs = {"apartment (embedded)": main_run}
-    smooth = torch.round(1 + (surface(128 if args.quick else 256) - 1) * (4094 / 1022))  # Fig. 2's surface, 12 bits
-    runs["smooth synthetic surface"] = energy_run(smooth)
-    states = {
-        "apartment": intermediate_states(main_run, truth, (1, 2, 3)),
-        "smooth surface": intermediate_states(runs["smooth synthetic surface"], smooth, (1, 3, 10)),
-    }
-    if shared_available() and not args.quick:
-        for name in OTHER_SCENES:
-            runs[Path(name).stem] = energy_run(protocol_a(load_scene(scene_path(name), 256)))
-
-    print(f"Figs. 5b/6: protocol A, {BITS}-bit modulus, unwrap_single(method='paper'); energies normalised by E(k=0)")
-    rows = []
-    for name, r in runs.items():
-        e = np.asarray(r["energies"]) / r["energies"][0]
-        rows.append(
-            [
-                name,
-                r["iterations"],
-                r["cuts"],
-                " ".join(f"{v:.3f}" for v in e),
-                f"{r['energy_truth'] / r['energies'][0]:.3f}",
-                f"{100 * r['exact_k']:.2f}",
-            ]
-        )
-    table(rows, ["scene", "moves", "cuts", "energy per iteration", "E(truth)", "exact-k %"])
-    for name, seq in states.items():
-        for n, moves, _, share in seq:
-            print(f"  {name} after {n} cut(s) ({moves} accepted moves): exact-k {100 * share:.2f}%")
-
+def draw(
+    runs: dict[str, dict[str, object]],
+    states: dict[str, list[tuple[int, int, torch.Tensor, float]]],
+    truth: torch.Tensor,
+    smooth: torch.Tensor,
+) -> plt.Figure:
+    """The figure: the potential (5a), the energy curves (5b), the final result (6b) and the intermediate states."""
+    main_run = runs[EMBEDDED_LABEL]
     cols = max(len(seq) for seq in states.values()) + 1
     fig = plt.figure(figsize=(13.0, 9.0), dpi=90)
     grid = fig.add_gridspec(3, cols, height_ratios=[1.0, 0.7, 1.2])
@@ -148,6 +122,44 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
         "Figs. 5 and 6: energy and intermediate states of the paper's graph cut (apartment, protocol A)", fontsize=9
     )
     fig.tight_layout(rect=(0, 0, 1, 0.96))
+    return fig
+
+
+def main(argv: list[str] | None = None) -> dict[str, object]:
+    args = parser(__doc__.split("\n\n")[0]).parse_args(argv)
+    max_side = 128 if args.quick else 512
+    truth = protocols.protocol_a(protocols.load_scene(default_scene_path(), max_side))[None]
+    main_run = energy_run(truth)
+    runs = {EMBEDDED_LABEL: main_run}
+    smooth = torch.round(1 + (surface(128 if args.quick else 256) - 1) * (4094 / 1022))  # Fig. 2's surface, 12 bits
+    runs["smooth synthetic surface"] = energy_run(smooth)
+    states = {
+        "apartment": intermediate_states(main_run, truth, (1, 2, 3)),
+        "smooth surface": intermediate_states(runs["smooth synthetic surface"], smooth, (1, 3, 10)),
+    }
+    for name, path in [] if args.quick else find_scenes(OTHER_SCENES, fallback=False):
+        runs[name] = energy_run(protocols.protocol_a(protocols.load_scene(path, 256))[None])
+
+    print(f"Figs. 5b/6: protocol A, {BITS}-bit modulus, unwrap_single(method='paper'); energies normalised by E(k=0)")
+    rows = []
+    for name, r in runs.items():
+        e = np.asarray(r["energies"]) / r["energies"][0]
+        rows.append(
+            [
+                name,
+                r["iterations"],
+                r["cuts"],
+                " ".join(f"{v:.3f}" for v in e),
+                f"{r['energy_truth'] / r['energies'][0]:.3f}",
+                f"{100 * r['exact_k']:.2f}",
+            ]
+        )
+    table(rows, ["scene", "moves", "cuts", "energy per iteration", "E(truth)", "exact-k %"])
+    for name, seq in states.items():
+        for n, moves, _, share in seq:
+            print(f"  {name} after {n} cut(s) ({moves} accepted moves): exact-k {100 * share:.2f}%")
+
+    fig = draw(runs, states, truth, smooth)
     path = save_figure(fig, Path(args.out) / "fig05_06_energy.png")
 
     monotone = all(all(b <= a for a, b in zip(r["energies"], r["energies"][1:], strict=False)) for r in runs.values())

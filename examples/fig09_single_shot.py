@@ -1,6 +1,6 @@
 """Fig. 9 of the paper: single-shot unwrapping of real scenes (truth, intensity, modulus, unwrapped).
 
-    python examples/fig09_single_shot.py                 # five real scenes -> examples/out/fig09_single_shot.png
+    python examples/fig09_single_shot.py                 # seven real scenes -> examples/out/fig09_single_shot.png
     python examples/fig09_single_shot.py --quick --out /tmp/figs          # the embedded CC0 scene, small
     python examples/fig09_single_shot.py --method fast --scenes hdr-samples/memorial.hdr
 
@@ -9,20 +9,23 @@ brightness values over 255 to 255, and the 8-bit modulus images are easily simul
 (>8) of the ground truth [...] Our unwrapping algorithm recovers these wrapped values back to their true values. As
 shown, images are restored successfully even with large areas of saturation."
 
-Here, on the seven OpenEXR sample photographs of at least 10 stops (BSD-3, ../shared/data/hdr/openexr-images):
-protocol A of BENCHMARKS.md (area-downsampled to at most 512 px, luminance scaled so that its 99.9th
-percentile is 4095, clipped, floored: 12-bit counts I; intensity min(I, 255); modulus I mod 256), unwrapped by
-:func:`torch_modulo.unwrap_single` (the paper's graph cut by default). Scores per scene:
+Here, on the seven OpenEXR sample photographs of at least 10 stops (BSD-3, the openexr-images folder of the
+development scenes, :data:`torch_modulo.protocols.DEV_SCENES`): protocol A (:func:`torch_modulo.protocols.protocol_a`:
+area-downsampled to at most 512 px, luminance scaled so that its 99.9th percentile is 4095, clipped, floored: 12-bit
+counts I; intensity min(I, 255); modulus I mod 256), unwrapped by :func:`torch_modulo.unwrap_single` (the paper's
+graph cut by default). Scores per scene (:func:`torch_modulo.protocols.score_scene`, as in the benchmark):
 
-- exact-k: share of pixels whose rollover count is right after aligning the global offset (the benchmark's score);
-- the share of pixels that roll over at all (k > 0), and exact-k among them: most pixels of a real scene never roll
-  over, so "k = 0 everywhere" already scores the first number's complement of that share;
-- PSNR of the restored counts against I (peak 4095);
+- exact-k: share of pixels whose rollover count is right after aligning the global offset;
+- the share of pixels that roll over at all (k > 0), and exact-k among them (the benchmark's "rolled-over right"):
+  most pixels of a real scene never roll over, so "k = 0 everywhere" already scores the first number's complement
+  of that share;
+- PSNR of the aligned counts against I (peak 4095);
 - the energy (Eq. 3) of the solution found and of the truth: where the truth's is higher, the paper's energy itself
   prefers the wrong answer, and no better minimiser can fix that scene.
 
 Display: Larson et al.'s histogram adjustment (the paper's [20]) for truth and result, linear for the 8-bit frames;
-the last column marks the pixels with a wrong k in red.
+the last column marks the pixels with a wrong k in red. Scenes that are absent (a fresh clone has no scenes folder)
+are listed as missing; with none of them present the script runs on the embedded scene, under its own name.
 """
 
 from __future__ import annotations
@@ -32,15 +35,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _common import load_scene, parser, protocol_a, save_figure, scene_path, show, stops, table, verdict
+from _common import find_scenes, parser, save_figure, show, stops, table, verdict
 from matplotlib import pyplot as plt
 
-from torch_modulo import exact_k_map, psnr
-from torch_modulo.singleshot import METHODS, unwrap_energy, unwrap_single
+from torch_modulo import exact_k_map, protocols
+from torch_modulo.singleshot import unwrap_energy, unwrap_single
 from torch_modulo.tonemap import tonemap_histogram
 
 BITS = 8
 IN_BITS = 12
+PEAK = protocols.PROTOCOL_PEAKS["A"]
 #: The OpenEXR sample photographs (BSD-3) of at least 10 stops, every one of them (the data README's list): a rule,
 #: not a pick of the scenes that work.
 SCENES = [
@@ -68,31 +72,29 @@ def wrong_k_overlay(truth: torch.Tensor, ok: torch.Tensor) -> np.ndarray:
     return rgb
 
 
-def evaluate(name: str, max_side: int, method: str) -> dict[str, object]:
-    hdr = load_scene(scene_path(name), max_side)
-    truth = protocol_a(hdr, IN_BITS)
+def evaluate(label: str, path: Path, max_side: int, method: str) -> dict[str, object]:
+    hdr = protocols.load_scene(path, max_side)
+    truth = protocols.protocol_a(hdr)[None]
     modulus = torch.remainder(truth, 2**BITS)
+    name, options = protocols.parse_method(method)
     start = time.perf_counter()
-    restored = unwrap_single(modulus, bits=BITS, method=method, workers=1)
+    restored = unwrap_single(modulus, bits=BITS, method=name, workers=1, **options)
     seconds = time.perf_counter() - start
-    ok = exact_k_map(restored, truth, BITS)
-    wrapped = truth >= 2**BITS
-    e_found = float(unwrap_energy(restored, BITS))
-    e_truth = float(unwrap_energy(truth, BITS))
+    score = protocols.score_scene(restored, truth, BITS, PEAK)
     return {
-        "name": Path(name).stem,
+        "name": label,
         "shape": tuple(truth.shape[-2:]),
-        "stops": stops(hdr.mean(dim=1, keepdim=True)),
+        "stops": stops(hdr.mean(dim=0)),
         "truth": truth,
         "modulus": modulus,
         "restored": restored,
-        "ok": ok,
-        "exact_k": float(ok.double().mean()),
-        "wrapped_share": float(wrapped.double().mean()),
-        "exact_k_wrapped": float(ok[wrapped].double().mean()) if bool(wrapped.any()) else float("nan"),
-        "psnr": float(psnr(restored, truth, peak=2.0**IN_BITS - 1)[0]),
-        "energy_found": e_found,
-        "energy_truth": e_truth,
+        "ok": exact_k_map(restored, truth, BITS),
+        "exact_k": score.exact_k,
+        "wrapped_share": float((truth >= 2**BITS).double().mean()),
+        "exact_k_wrapped": score.rolled_over_right,
+        "psnr": score.psnr,
+        "energy_found": float(unwrap_energy(restored, BITS)),
+        "energy_truth": float(unwrap_energy(truth, BITS)),
         "perfect": bool(torch.equal(restored, truth)),
         "seconds": seconds,
     }
@@ -100,12 +102,14 @@ def evaluate(name: str, max_side: int, method: str) -> dict[str, object]:
 
 def main(argv: list[str] | None = None) -> dict[str, object]:
     p = parser(__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", nargs="+", default=None, help="scenes under ../shared/data/hdr, or 'embedded'")
-    p.add_argument("--method", default="paper", choices=sorted(METHODS), help="unwrap_single method")
+    p.add_argument("--scenes", nargs="+", default=None, help="scenes under the scenes folder, or 'embedded'")
+    p.add_argument(
+        "--method", default="paper", help="unwrap_single method, options as in guided:denoise=0.7 (default: paper)"
+    )
     args = p.parse_args(argv)
-    scenes = args.scenes or (["embedded"] if args.quick else SCENES)
+    scenes = find_scenes(args.scenes or (["embedded"] if args.quick else SCENES), required=bool(args.scenes))
     max_side = 96 if args.quick else 512
-    results = [evaluate(name, max_side, args.method) for name in scenes]
+    results = [evaluate(label, path, max_side, args.method) for label, path in scenes]
 
     print(f"Fig. 9: protocol A ({IN_BITS}-bit luminance -> {BITS}-bit modulus), unwrap_single(method={args.method!r})")
     rows = [

@@ -8,13 +8,15 @@ Paper (Sec. 6.1.2): "8-bit ground truth images are chosen to make visualizable e
 synthesized as outputs of both cameras." Exposure ratio 1:16 for 2 captures and 1:2:4:8:16 for 5 captures.
 "Quantization noise is visible in images from an intensity camera, but not in those from a modulo camera."
 
-Here each ground truth is a real HDR scene from ../shared/data/hdr (OpenEXR samples, BSD-3; Poly Haven, CC0),
+Here each ground truth is a real HDR scene of the development scenes (OpenEXR samples, BSD-3; Poly Haven, CC0),
 tone-mapped with Larson et al.'s histogram adjustment (the paper's [20],
 :func:`torch_modulo.tonemap.tonemap_histogram`, sRGB-encoded) and quantised to 8 bits per channel, G in {0..255}.
 The cameras see G as radiance in counts at the longest exposure (exposures 1/16 ... 1), 4 bits. Intensity frames are
 merged with :func:`torch_modulo.merge_intensity` (binary mask), modulo frames unwrapped with
 :func:`torch_modulo.unwrap_multi`. Scores: PSNR against G (peak 255) and mean absolute error. The close-up is the
 bright window (mean above 96) where the 5-capture intensity merge errs most (mean absolute error over the window).
+Scenes that are absent (a fresh clone has no scenes folder) are listed as missing; with none of them present the
+script runs on the embedded scene, under its own name.
 """
 
 from __future__ import annotations
@@ -25,10 +27,10 @@ import matplotlib.patches as patches
 import numpy as np
 import torch
 import torch.nn.functional as F
-from _common import load_scene, parser, save_figure, scene_path, show, table, verdict
+from _common import find_scenes, parser, save_figure, show, table, verdict
 from matplotlib import pyplot as plt
 
-from torch_modulo import capture_intensity, capture_modulo, merge_intensity, psnr, unwrap_multi
+from torch_modulo import capture_intensity, capture_modulo, merge_intensity, protocols, psnr, unwrap_multi
 from torch_modulo.tonemap import tonemap_histogram
 
 BITS = 4
@@ -72,15 +74,15 @@ def close_up(error: torch.Tensor, truth: torch.Tensor, size: int) -> tuple[int, 
 
 def main(argv: list[str] | None = None) -> dict[str, object]:
     p = parser(__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", nargs="+", default=None, help="scenes under ../shared/data/hdr, or 'embedded'")
+    p.add_argument("--scenes", nargs="+", default=None, help="scenes under the scenes folder, or 'embedded'")
     args = p.parse_args(argv)
-    scenes = args.scenes or (["embedded"] if args.quick else SCENES)
+    scenes = find_scenes(args.scenes or (["embedded"] if args.quick else SCENES), required=bool(args.scenes))
     max_side = 128 if args.quick else 384
 
     per_scene: list[dict[str, object]] = []
     rows = []
-    for name in scenes:
-        hdr = load_scene(scene_path(name), max_side)
+    for name, path in scenes:
+        hdr = protocols.load_scene(path, max_side)[None]
         truth = ground_truth(hdr)
         results = reconstruct(truth)
         scores = {}
@@ -88,8 +90,8 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
             value = float(psnr(estimate, truth, peak=255.0)[0])
             mae = float((estimate - truth).abs().mean())
             scores[label] = {"psnr": value, "mae": mae, "exact": bool(torch.equal(estimate, truth))}
-            rows.append([Path(name).stem, label, f"{value:.2f}", f"{mae:.3f}", scores[label]["exact"]])
-        per_scene.append({"name": Path(name).stem, "truth": truth, "results": results, "scores": scores})
+            rows.append([name, label, f"{value:.2f}", f"{mae:.3f}", scores[label]["exact"]])
+        per_scene.append({"name": name, "truth": truth, "results": results, "scores": scores})
 
     print(f"Fig. 10: 8-bit ground truth, {BITS}-bit cameras, exposures 1:16 (2 captures) and 1:2:4:8:16 (5 captures)")
     table(rows, ["scene", "method", "PSNR dB (peak 255)", "mean |err|", "exact"])

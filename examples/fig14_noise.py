@@ -34,12 +34,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _common import load_scene, luminance, parser, save_figure, scene_path, show, table, verdict
+from _common import parser, save_figure, show, table, verdict
 from fig02_wrap_unwrap import surface
 from matplotlib import pyplot as plt
 
-from torch_modulo import exact_k_map, exact_k_share, unwrap_multi
+from torch_modulo import exact_k_map, exact_k_share, protocols, unwrap_multi
+from torch_modulo.assets import default_scene_path
 from torch_modulo.sensors import NoiseModel, SimulatedModuloSensor
+from torch_modulo.tonemap import luminance
 
 BITS = 8
 PEAK = 3840.0
@@ -56,7 +58,7 @@ def scenes(quick: bool) -> dict[str, torch.Tensor]:
     """Radiance maps (1, 1, H, W) float64 with maximum ``PEAK``: the smooth surface and the room's luminance."""
     smooth = surface(128)  # smaller, its steepest slopes pass 2^(N-1) per pixel and aliasing sets in
     smooth = (smooth - smooth.min()) / (smooth.max() - smooth.min()) * (PEAK - 1) + 0.5
-    room = luminance(load_scene(scene_path("embedded"), 96 if quick else 256))
+    room = luminance(protocols.load_scene(default_scene_path(), 96 if quick else 256)[None])
     return {"smooth": smooth, "room": room * (PEAK / float(room.max()))}
 
 
@@ -83,8 +85,7 @@ def run_level(
 
         for label, key in ((SINGLE_SMOOTH, "smooth"), (SINGLE_ROOM, "room")):
             moduli, reference = capture(maps[key], [1.0], noise)
-            name, _, option = method.partition(":")  # e.g. "guided:denoise=0.7"
-            options = {k: float(v) for k, v in (item.split("=") for item in option.split(",") if item)}
+            name, options = protocols.parse_method(method)  # e.g. "guided:denoise=0.7"
             restored = unwrap_single(moduli[:, 0], bits=BITS, method=name, workers=1, **options)
             out[label] = float(exact_k_share(restored, reference[:, 0], BITS)[0])
             if key == "smooth":

@@ -8,7 +8,8 @@ ref. [20]), CLAHE on log luminance, Reinhard et al. 2002, the logarithmic mappin
 panel plots each operator's display luminance against world luminance for a sample of the scene's pixels (a
 global operator draws one curve; CLAHE, being local, a cloud). The luminance-based operators are shown with the
 sRGB transfer function; the gamma panel is its own encoding. Scene: Greg Ward's Memorial Church radiance map
-(the paper's Fig. 1 uses a radiance map courtesy of Greg Ward), from ../shared/data/hdr/hdr-samples.
+(the paper's Fig. 1 uses a radiance map courtesy of Greg Ward), from the hdr-samples folder of the development
+scenes (:data:`torch_modulo.protocols.DEV_SCENES`); without it, name a scene with --input.
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from _common import save_figure  # noqa: E402
+from _common import save_figure, stops  # noqa: E402
 
-from torch_modulo.io import read_image  # noqa: E402
+from torch_modulo import protocols  # noqa: E402
 from torch_modulo.tonemap import (  # noqa: E402
     luminance,
     tonemap_clahe,
@@ -38,7 +39,7 @@ from torch_modulo.tonemap import (  # noqa: E402
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_INPUT = ROOT.parent / "shared" / "data" / "hdr" / "hdr-samples" / "memorial.hdr"
+DEFAULT_INPUT = protocols.DEV_SCENES / "hdr-samples" / "memorial.hdr"
 DEFAULT_OUT = ROOT / "examples" / "out" / "tonemap_comparison.png"
 
 
@@ -108,15 +109,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"PNG to write (default {DEFAULT_OUT})")
     args = parser.parse_args(argv)
     if not args.input.is_file():
-        parser.error(f"--input {args.input} not found (the shared scenes live in ../shared/data/hdr)")
-    hdr = read_image(args.input)
-    if hdr.shape[0] == 1:
-        hdr = hdr.expand(3, -1, -1)
-    hdr = hdr[:3].clamp_min(0)[None]  # some files hold small negative values
-    y = luminance(hdr)
-    positive = y[y > 0]
-    stops = math.log2(float(torch.quantile(positive, 0.999)) / float(torch.quantile(positive, 0.001)))
-    title = f"{args.input.name}: {hdr.shape[-1]}x{hdr.shape[-2]}, {stops:.1f} stops (p99.9 / p0.1)"
+        parser.error(f"--input {args.input} not found (the development scenes live in {protocols.DEV_SCENES})")
+    hdr = protocols.load_scene(args.input, max_side=None).float()  # full size; NaN and negative values zeroed
+    hdr = hdr.expand(3, -1, -1)[None]
+    title = f"{args.input.name}: {hdr.shape[-1]}x{hdr.shape[-2]}, {stops(luminance(hdr)):.1f} stops (p99.9 / p0.1)"
     timings = render(hdr, title, args.out)
     for name, seconds in timings.items():
         print(f"{name:<40} {seconds * 1e3:8.1f} ms")

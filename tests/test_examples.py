@@ -17,6 +17,8 @@ from types import ModuleType
 
 import pytest
 
+from torch_modulo.assets import default_scene_path
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
@@ -148,6 +150,53 @@ class TestFig13Failure:
 
     def test_sun(self, tmp_path: Path, shared_hdr: Path) -> None:
         result = _run("fig13_failure", tmp_path, "--scene", "qt-preview/landscape.hdr")
+        assert result["scene"] == "landscape"
         single = result["scores"]["single shot"]
         assert single["exact_k_bright"] < 0.5 < single["exact_k"]
         assert result["holds"]
+
+
+class TestMissingScenes:
+    """Without the scenes folder (a fresh clone) the figures run on what exists, under its own name, and say what is
+    missing; a scene the user names must exist."""
+
+    @pytest.fixture
+    def common(self, monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> ModuleType:
+        module = _load("_common")
+        monkeypatch.setattr(module, "SCENES_DIR", tmp_path / "absent")
+        return module
+
+    def test_embedded_stands_in_under_its_own_name(self, common: ModuleType, capsys: pytest.CaptureFixture) -> None:
+        found = common.find_scenes(["openexr-images/a.exr", "hdr-samples/b.hdr"])
+        assert found == [("apartment (embedded)", default_scene_path())]
+        out = capsys.readouterr().out
+        assert "missing 2 of 2 scene(s)" in out and "openexr-images/a.exr, hdr-samples/b.hdr" in out
+        assert "does not exist" in out and "using the embedded scene instead" in out
+        assert common.find_scenes(["openexr-images/a.exr"], fallback=False) == []
+        with pytest.raises(FileNotFoundError, match="openexr-images/a.exr"):
+            common.find_scenes(["openexr-images/a.exr"], required=True)
+
+    def test_present_scenes_only(
+        self, common: ModuleType, monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture
+    ) -> None:
+        (tmp_path / "src").mkdir()
+        (tmp_path / "src" / "a.exr").write_bytes(b"")
+        monkeypatch.setattr(common, "SCENES_DIR", tmp_path)
+        assert common.find_scenes(["src/a.exr", "src/b.exr"]) == [("a", tmp_path / "src" / "a.exr")]
+        assert "missing 1 of 2 scene(s) under" in capsys.readouterr().out
+
+    def test_fig10_default_scenes(self, common: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+        result = _load("fig10_multi_shot").main(["--out", str(tmp_path)])  # the real scenes, not --quick
+        assert list(result["scores"]) == ["apartment (embedded)"]
+        assert "missing 3 of 3 scene(s)" in capsys.readouterr().out
+        assert result["holds"]
+
+    def test_fig09_default_scenes(self, common: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+        result = _load("fig09_single_shot").main(["--out", str(tmp_path), "--method", "fast"])  # not --quick
+        assert [scene["name"] for scene in result["scenes"]] == ["apartment (embedded)"]  # once, under its own name
+        assert "missing 7 of 7 scene(s)" in capsys.readouterr().out
+
+    @pytest.mark.parametrize(("script", "option"), [("fig09_single_shot", "--scenes"), ("fig13_failure", "--scene")])
+    def test_named_scene_must_exist(self, common: ModuleType, tmp_path: Path, script: str, option: str) -> None:
+        with pytest.raises(FileNotFoundError, match="qt-preview/landscape.hdr"):
+            _load(script).main(["--quick", "--out", str(tmp_path), option, "qt-preview/landscape.hdr"])

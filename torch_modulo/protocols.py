@@ -1,14 +1,33 @@
-"""The measurement protocols of BENCHMARKS.md, shared by the benchmarks, the research harness and the examples.
+"""The single-shot measurement protocols: scenes, protocols A, A10 and B, and their scores.
 
+One module turns a radiance map into a benchmark number, so that the benchmarks (``benchmarks/``), the examples and
+anyone reproducing a published number use the same code.
+
+Scenes:
+
+- :func:`list_scenes`: every ``.exr``/``.hdr`` file below a folder, sorted by path; ``split="train"`` or
+  ``"validation"`` keeps one side of the split (:data:`TRAIN_SOURCES`, :data:`VALIDATION_SOURCES`,
+  :func:`scene_split`). :data:`DEV_SCENES` is where a source checkout finds the development scenes.
 - :func:`load_scene`: read an HDR file, zero NaN/Inf and negatives, and downsample it by whole-pixel area averaging
   until its longer side is at most ``max_side`` (:func:`downsample_area`).
-- :func:`protocol_a`: the paper's single-shot setting: luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` scaled so
-  that its 99.9th percentile is ``peak`` (4095: a 12-bit scene), clipped to ``[0, peak]`` and floored.
+
+Protocols (12-bit or 10-bit true counts ``I``; the 8-bit modulus is ``I mod 256``):
+
+- :func:`protocol_a`: the paper's setting: luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` scaled so that its
+  99.9th percentile is ``peak`` (4095: a 12-bit scene), clipped to ``[0, peak]`` and floored.
+- :func:`protocol_a10`: protocol A with the 99.9th percentile at 1023 (10 bits, at most four rollovers).
 - :func:`protocol_b`: the UnModNet setting: RGB min-max scaled to [0, 1], the exposure ``e`` chosen by bisection so
   that ``share`` (20%) of the pixels roll over (``floor(clip(x e, 0, 1) * peak) >= period``) in at least one
   channel; the counts are ``floor(clip(x e, 0, 1) * peak)`` per channel.
+- :func:`protocol_counts` and :data:`PROTOCOL_PEAKS` select a protocol by name; the peak is also the PSNR peak.
 
-The modulus of either is ``counts mod period`` (256: 8 bits).
+Scores (per scene, :func:`score_scene`): each channel's global rollover offset is aligned with the truth first
+(:func:`align_offsets`: the most common difference of the rollover counts ``k = floor(I / 2^N)``); then *exact-k*
+is the share of values whose ``k`` is right, *rolled-over right* (:func:`rolled_over_right`) the same share over the
+values whose true ``k`` is above 0 only (a method that unwraps nothing scores 0 there), and PSNR compares the
+aligned counts with the truth.
+
+:func:`parse_method` reads the method specifications the benchmarks take (``"guided:denoise=0.7"``).
 """
 
 from __future__ import annotations
@@ -16,22 +35,117 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import Literal, NamedTuple
 
 import numpy as np
 import torch
 
-from torch_modulo._checks import check_floating, check_image_shape
+from torch_modulo._checks import (
+    check_choice,
+    check_finite,
+    check_floating,
+    check_image_shape,
+    check_int,
+    check_real,
+)
 from torch_modulo.io import read_image
+from torch_modulo.tonemap import luminance
 
-__all__ = ["HDR_SUFFIXES", "downsample_area", "list_scenes", "load_scene", "protocol_a", "protocol_b"]
+__all__ = [
+    "DEV_SCENES",
+    "HDR_SUFFIXES",
+    "PROTOCOL_PEAKS",
+    "SPLITS",
+    "TRAIN_SOURCES",
+    "VALIDATION_SOURCES",
+    "SceneScore",
+    "align_offsets",
+    "downsample_area",
+    "list_scenes",
+    "load_scene",
+    "parse_method",
+    "protocol_a",
+    "protocol_a10",
+    "protocol_b",
+    "protocol_counts",
+    "rolled_over_right",
+    "scene_split",
+    "score_scene",
+]
 
 #: File endings of the radiance maps the protocols read.
 HDR_SUFFIXES = (".exr", ".hdr")
 
+#: The development scenes of a source checkout: ``shared/data/hdr`` in the folder that holds the repository. One
+#: sub-folder per source; nothing there is copied into the repository.
+DEV_SCENES = Path(__file__).resolve().parents[2] / "shared" / "data" / "hdr"
 
-def list_scenes(folder: str | os.PathLike[str]) -> list[Path]:
-    """Every .exr/.hdr file below ``folder``, sorted by path."""
-    return sorted(p for p in Path(folder).rglob("*") if p.suffix.lower() in HDR_SUFFIXES)
+#: Sources (first folder below the scenes folder) a learned method may train on: CC0 and BSD-licensed scenes.
+TRAIN_SOURCES = ("openexr-images", "polyhaven-cc0")
+
+#: Sources kept aside to validate learned methods on.
+VALIDATION_SOURCES = ("hdr-samples", "hdr-toolbox", "light-probes", "qt-preview")
+
+#: What :func:`list_scenes` can keep.
+SPLITS = ("all", "train", "validation")
+
+#: The single-shot protocols by name, with their largest count (also the PSNR peak).
+PROTOCOL_PEAKS: dict[str, float] = {"A": 4095.0, "A10": 1023.0, "B": 4095.0}
+
+Split = Literal["train", "validation", "other"]
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# scenes
+# --------------------------------------------------------------------------------------------------------------------
+
+
+def scene_split(path: str | os.PathLike[str], folder: str | os.PathLike[str]) -> Split:
+    """The side of the split a scene below ``folder`` is on, from its source (the first folder below ``folder``).
+
+    Args:
+        path: a scene file below ``folder``.
+        folder: the scenes folder (:data:`DEV_SCENES` for the development scenes).
+
+    Returns:
+        ``"train"`` for :data:`TRAIN_SOURCES`, ``"validation"`` for :data:`VALIDATION_SOURCES`, else ``"other"``.
+
+    Raises:
+        ValueError: ``path`` is not below ``folder``.
+
+    Example:
+        >>> scene_split("hdr/qt-preview/landscape.hdr", "hdr"), scene_split("hdr/polyhaven-cc0/park.exr", "hdr")
+        ('validation', 'train')
+        >>> scene_split("hdr/mine.exr", "hdr")
+        'other'
+    """
+    try:
+        parts = Path(path).relative_to(Path(folder)).parts
+    except ValueError:
+        raise ValueError(f"path must be below folder {str(folder)!r}; got {str(path)!r}") from None
+    source = parts[0] if len(parts) > 1 else ""
+    if source in TRAIN_SOURCES:
+        return "train"
+    if source in VALIDATION_SOURCES:
+        return "validation"
+    return "other"
+
+
+def list_scenes(folder: str | os.PathLike[str], split: str = "all") -> list[Path]:
+    """Every .exr/.hdr file below ``folder``, sorted by path; with ``split``, only one side of the split.
+
+    Args:
+        folder: the scenes folder (:data:`DEV_SCENES` for the development scenes); missing gives an empty list.
+        split: ``"all"`` (default), ``"train"`` or ``"validation"`` (see :func:`scene_split`).
+
+    Raises:
+        ValueError: ``split`` is not one of :data:`SPLITS`.
+    """
+    split = check_choice(split, "split", SPLITS)
+    scenes = sorted(p for p in Path(folder).rglob("*") if p.suffix.lower() in HDR_SUFFIXES and p.is_file())
+    if split == "all":
+        return scenes
+    return [p for p in scenes if scene_split(p, folder) == split]
 
 
 def downsample_area(image: torch.Tensor, max_side: int) -> torch.Tensor:
@@ -46,8 +160,7 @@ def downsample_area(image: torch.Tensor, max_side: int) -> torch.Tensor:
     """
     check_floating(image, "image")
     check_image_shape(image, "image", min_dims=3, max_dims=3)
-    if max_side < 1:
-        raise ValueError(f"max_side must be >= 1; got {max_side}")
+    max_side = check_int(max_side, "max_side", 1)
     c, h, w = image.shape
     f = max(1, math.ceil(max(h, w) / max_side))
     if f == 1:
@@ -68,8 +181,17 @@ def load_scene(path: str | os.PathLike[str], max_side: int | None = 512) -> torc
     return downsample_area(image, max_side) if max_side else image
 
 
+# --------------------------------------------------------------------------------------------------------------------
+# protocols
+# --------------------------------------------------------------------------------------------------------------------
+
+
 def protocol_a(image: torch.Tensor, peak: float = 4095.0) -> torch.Tensor:
     """(1, H, W) counts: luminance scaled so its 99.9th percentile is ``peak``, clipped to [0, peak], floored.
+
+    Args:
+        image: (C, H, W) radiance, C = 1 (luminance itself) or 3 (linear RGB).
+        peak: the count the 99.9th percentile maps to, and the largest count.
 
     Example:
         >>> protocol_a(torch.full((3, 2, 2), 0.5)).flatten().tolist()
@@ -77,16 +199,24 @@ def protocol_a(image: torch.Tensor, peak: float = 4095.0) -> torch.Tensor:
     """
     check_floating(image, "image")
     check_image_shape(image, "image", min_dims=3, max_dims=3)
-    if image.shape[0] == 1:
-        y = image[0]
-    elif image.shape[0] == 3:
-        y = 0.2126 * image[0] + 0.7152 * image[1] + 0.0722 * image[2]
-    else:
+    if image.shape[0] not in (1, 3):
         raise ValueError(f"image must have 1 or 3 channels; got {image.shape[0]}")
+    peak = check_real(peak, "peak", positive=True)
+    y = luminance(image[None])[0, 0]
     p = float(np.percentile(y.detach().cpu().double().numpy(), 99.9))
     if p <= 0:
         p = float(y.max()) or 1.0
     return torch.floor(torch.clamp(y * (peak / p), 0.0, peak))[None]
+
+
+def protocol_a10(image: torch.Tensor) -> torch.Tensor:
+    """(1, H, W) counts of protocol A with the 99.9th percentile at 1023 (10 bits): :func:`protocol_a` with peak 1023.
+
+    Example:
+        >>> protocol_a10(torch.full((1, 2, 2), 3.0)).flatten().tolist()
+        [1023.0, 1023.0, 1023.0, 1023.0]
+    """
+    return protocol_a(image, peak=PROTOCOL_PEAKS["A10"])
 
 
 def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, period: float = 256.0) -> torch.Tensor:
@@ -120,3 +250,188 @@ def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, pe
         else:
             e_hi = mid
     return counts(e_hi)
+
+
+def protocol_counts(image: torch.Tensor, protocol: str) -> torch.Tensor:
+    """The true counts of protocol ``"A"``, ``"A10"`` or ``"B"`` (8-bit modulus: period 256) for a (C, H, W) scene.
+
+    Example:
+        >>> protocol_counts(torch.full((3, 1, 2), 2.0), "A10").tolist()
+        [[[1023.0, 1023.0]]]
+    """
+    protocol = check_choice(protocol, "protocol", PROTOCOL_PEAKS)
+    if protocol == "B":
+        return protocol_b(image, peak=PROTOCOL_PEAKS["B"])
+    return protocol_a(image, peak=PROTOCOL_PEAKS[protocol])
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# scores
+# --------------------------------------------------------------------------------------------------------------------
+
+
+class SceneScore(NamedTuple):
+    """The scores of one restored scene (see :func:`score_scene`)."""
+
+    #: Share of values whose rollover count is right, after aligning each channel's offset.
+    exact_k: float
+    #: The same share over the values whose true rollover count is above 0; NaN when none is.
+    rolled_over_right: float
+    #: PSNR of the aligned counts against the truth, in dB (+inf when they are identical).
+    psnr: float
+
+
+def _rollover_differences(restored: torch.Tensor, truth: torch.Tensor, bits: int) -> tuple[torch.Tensor, int]:
+    """Checked ``k_restored - k_truth`` as (planes, H * W) float64, and the period ``2^bits``."""
+    check_floating(restored, "restored")
+    check_floating(truth, "truth")
+    check_image_shape(restored, "restored", min_dims=2)
+    if restored.shape != truth.shape:
+        raise ValueError(
+            f"restored and truth must have the same shape; got {tuple(restored.shape)} and {tuple(truth.shape)}"
+        )
+    if restored.numel() == 0:
+        raise ValueError(f"restored and truth must hold values; got shape {tuple(restored.shape)}")
+    check_finite(restored, "restored")
+    check_finite(truth, "truth")
+    period = 2 ** check_int(bits, "bits", 1, 52)
+    h, w = restored.shape[-2:]
+    k_r = torch.floor(restored.detach().double() / period).reshape(-1, h * w)
+    k_t = torch.floor(truth.detach().double() / period).reshape(-1, h * w).to(k_r.device)
+    return k_r - k_t, period
+
+
+def _plane_offsets(d: torch.Tensor) -> torch.Tensor:
+    """The most common value of each row of ``d`` (ties: the smallest), (planes,)."""
+    offsets = torch.empty(d.shape[0], dtype=d.dtype, device=d.device)
+    for i, row in enumerate(d):
+        values, counts = torch.unique(row, return_counts=True)  # sorted: argmax picks the smallest tied mode
+        offsets[i] = values[counts.argmax()]
+    return offsets
+
+
+def align_offsets(restored: torch.Tensor, truth: torch.Tensor, bits: int = 8) -> torch.Tensor:
+    """``restored`` with each channel shifted by whole periods so that its most common rollover count matches.
+
+    Single-shot unwrapping recovers the rollover count ``k = floor(I / 2^bits)`` up to a constant per channel; the
+    constant is the most common difference ``k_restored - k_truth`` over the channel (ties go to the smallest), as
+    in :func:`torch_modulo.exact_k_map`.
+
+    Args:
+        restored: restored counts, (..., H, W); every (H, W) plane is a channel.
+        truth: the true counts, same shape.
+        bits: sensor bit depth ``N``; the period is ``2^N``.
+
+    Returns:
+        The shifted counts, shape and dtype of ``restored``.
+
+    Raises:
+        TypeError: an input is not a floating tensor, or ``bits`` is not an integer.
+        ValueError: shapes differ, an input is empty or not finite, or ``bits`` is out of [1, 52].
+
+    Example:
+        >>> truth = torch.tensor([[10.0, 300.0], [600.0, 20.0]])
+        >>> align_offsets(truth + torch.tensor([[512.0, 512.0], [0.0, 512.0]]), truth)
+        tensor([[ 10., 300.],
+                [ 88.,  20.]])
+    """
+    d, period = _rollover_differences(restored, truth, bits)
+    shift = (_plane_offsets(d) * period).to(restored.device, restored.dtype)
+    planes = restored.reshape(d.shape[0], -1) - shift[:, None]
+    return planes.reshape(restored.shape)
+
+
+def rolled_over_right(restored: torch.Tensor, truth: torch.Tensor, bits: int = 8) -> float:
+    """Share of the values that roll over (true ``k > 0``) whose aligned rollover count is right; NaN if none do.
+
+    What a modulo camera exists for: a method that unwraps nothing scores 0 here, however high its exact-k.
+
+    Args:
+        restored: restored counts, (..., H, W); every (H, W) plane is aligned on its own (:func:`align_offsets`).
+        truth: the true counts, same shape.
+        bits: sensor bit depth ``N``; the period is ``2^N``.
+
+    Example:
+        >>> truth = torch.tensor([[10.0, 300.0, 600.0, 20.0]])
+        >>> rolled_over_right(torch.tensor([[10.0, 300.0, 344.0, 20.0]]), truth)
+        0.5
+        >>> rolled_over_right(torch.remainder(truth, 256), truth)
+        0.0
+    """
+    return score_scene(restored, truth, bits).rolled_over_right
+
+
+def score_scene(restored: torch.Tensor, truth: torch.Tensor, bits: int = 8, peak: float = 4095.0) -> SceneScore:
+    """Exact-k, rolled-over right and PSNR of one restored scene against its true counts.
+
+    Args:
+        restored: restored counts, (..., H, W); every (H, W) plane is aligned on its own (:func:`align_offsets`).
+        truth: the true counts, same shape.
+        bits: sensor bit depth ``N``; the period is ``2^N``.
+        peak: the PSNR peak (the protocol's largest count, :data:`PROTOCOL_PEAKS`).
+
+    Returns:
+        A :class:`SceneScore` of Python floats.
+
+    Example:
+        >>> truth = torch.tensor([[10.0, 300.0], [600.0, 20.0]])
+        >>> score = score_scene(truth + 256 * torch.tensor([[1.0, 1.0], [0.0, 1.0]]), truth)
+        >>> score.exact_k, score.rolled_over_right, round(score.psnr, 2)
+        (0.75, 0.5, 30.1)
+    """
+    d, period = _rollover_differences(restored, truth, bits)
+    peak = check_real(peak, "peak", positive=True)
+    offsets = _plane_offsets(d)
+    ok = d == offsets[:, None]
+    rolled = (truth.detach().double() >= period).reshape(ok.shape).to(ok.device)
+    n_rolled = int(rolled.sum())
+    aligned = restored.detach().double().reshape(d.shape) - (offsets * period)[:, None]
+    mse = float((aligned - truth.detach().double().reshape(d.shape).to(aligned.device)).square().mean())
+    return SceneScore(
+        exact_k=float(ok.double().mean()),
+        rolled_over_right=float(ok[rolled].double().mean()) if n_rolled else math.nan,
+        psnr=math.inf if mse == 0 else 10.0 * math.log10(peak * peak / mse),
+    )
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# methods
+# --------------------------------------------------------------------------------------------------------------------
+
+
+def parse_method(spec: str) -> tuple[str, dict[str, object]]:
+    """Split a method specification ``"name:key=value,key=value"`` into the name and its keyword options.
+
+    Values become ``bool`` (``True``/``False``), ``int`` or ``float`` where they read as one, else stay strings.
+
+    Raises:
+        ValueError: the name is empty or an option has no ``=``.
+
+    Example:
+        >>> parse_method("fast:init=quality,tile=0,denoise=0.7")
+        ('fast', {'init': 'quality', 'tile': 0, 'denoise': 0.7})
+        >>> parse_method("guided")
+        ('guided', {})
+    """
+    if not isinstance(spec, str):
+        raise TypeError(f"spec must be a string; got {spec!r}")
+    name, _, rest = spec.partition(":")
+    if not name:
+        raise ValueError(f"spec must start with a method name; got {spec!r}")
+    options: dict[str, object] = {}
+    for item in filter(None, rest.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"method options must read key=value; got {item!r} in {spec!r}")
+        parsed: object = value
+        if value in ("True", "False"):
+            parsed = value == "True"
+        else:
+            for cast in (int, float):
+                try:
+                    parsed = cast(value)
+                    break
+                except ValueError:
+                    continue
+        options[key] = parsed
+    return name, options

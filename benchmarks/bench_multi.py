@@ -1,14 +1,15 @@
 #!/usr/bin/env python
 """Multi-shot accuracy on real scenes: the robust rule against Eq. 6 as printed, noise-free.
 
-For every scene in ../shared/data/hdr (downsampled by area averaging until the longer side is <= --size, negatives
-clamped to 0), the radiance is scaled so that the brightest value reads 2^bits - 1 at the shortest exposure (no
-rollover there, as Sec. 5.2 assumes). Each scene gets --exposures exposures whose neighbouring ratios are drawn
-uniformly from [2, 2^bits - 1] (seeded), and is also captured at ratios of exactly 2^bits. Score: the share of
-values whose counts at the longest exposure are exactly floor(tau_max E), for method="robust" and method="paper".
+For every scene under ``--data`` (default: the development scenes, ``torch_modulo.protocols.DEV_SCENES``), loaded
+by ``protocols.load_scene`` (area-averaged until the longer side is <= --size, negatives clamped to 0), the
+radiance is scaled so that the brightest value reads 2^bits - 1 at the shortest exposure (no rollover there, as
+Sec. 5.2 assumes). Each scene gets --exposures exposures whose neighbouring ratios are drawn uniformly from
+[2, 2^bits - 1] (seeded), and is also captured at ratios of exactly 2^bits. Score: the share of values whose counts
+at the longest exposure are exactly floor(tau_max E), for method="robust" and method="paper".
 
-    python scripts/bench_multi.py                 # all scenes
-    python scripts/bench_multi.py --limit 5       # a quick run
+    python benchmarks/bench_multi.py                 # all scenes
+    python benchmarks/bench_multi.py --limit 5       # a quick run
 """
 
 from __future__ import annotations
@@ -24,8 +25,6 @@ import torch
 import torch_modulo as tm
 from torch_modulo import protocols
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hdr"
-
 
 def load(path: Path, size: int) -> torch.Tensor:
     """(1, 3, H, W) float64 radiance, area-averaged by whole pixels until the longer side is <= size."""
@@ -39,15 +38,15 @@ def exact_share(radiance: torch.Tensor, taus: list[float], bits: int, method: st
     return float((counts == torch.floor(radiance * taus[-1])).double().mean())
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, default=SHARED)
+    parser.add_argument("--data", type=Path, default=protocols.DEV_SCENES)
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--bits", type=int, default=8)
     parser.add_argument("--exposures", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--limit", type=int, default=None)
-    args = parser.parse_args()
+    parser.add_argument("--limit", type=int, default=None, help="only the first N scenes")
+    args = parser.parse_args(argv)
 
     files = protocols.list_scenes(args.data)[: args.limit]
     if not files:

@@ -1,13 +1,13 @@
 """Time the tone-mapping operators as a ratio to ``tensor.clone()`` of the same batch, measured in the same run.
 
-BENCHMARKS.md asks elementwise and global layers to stay close to the cost of a copy on a (8, 3, 1024, 1024)
-float32 batch (the tone-mapping issue's goal: global operators within 3x of clone). Each repeat times clone and
-then every operator once, in turn, so machine noise hits them alike; the table gives medians, the median of the
-per-repeat ratios ("paired"), and the process CPU time (all threads) as a steadier figure on a shared machine.
+Elementwise and global layers should stay close to the cost of a copy on a (8, 3, 1024, 1024) float32 batch (the
+goal for global operators: within 3x of clone). Each repeat times clone and then every operator once, in turn, so
+machine noise hits them alike; the table gives medians, the median of the per-repeat ratios ("paired"), and the
+process CPU time (all threads) as a steadier figure on a shared machine.
 
-    python scripts/bench_tonemap.py                       # (8, 3, 1024, 1024) float32 on the CPU
-    python scripts/bench_tonemap.py --size 2,3,256,256    # quick run
-    python scripts/bench_tonemap.py --device cuda --clahe --json out/bench_tonemap.json
+    python benchmarks/bench_tonemap.py                       # (8, 3, 1024, 1024) float32 on the CPU
+    python benchmarks/bench_tonemap.py --size 2,3,256,256    # quick run
+    python benchmarks/bench_tonemap.py --device cuda --clahe --json out/bench_tonemap.json
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
 #!/usr/bin/env python
 """Time the elementwise layers as a ratio to ``tensor.clone()`` of the same data, in the same run.
 
-BENCHMARKS.md: on a (8, 3, 1024, 1024) float32 batch, the goal is within 2x of clone() (memory-bandwidth bound).
+The goal, on a (8, 3, 1024, 1024) float32 batch: within 2x of clone() (the layers are memory-bandwidth bound).
 For the multi-shot unwrap the data is the (B, M, C, H, W) stack of moduli (M = 3 exposures), so its reference is
 the clone of that stack; every other operation is compared with the clone of its (B, C, H, W) input.
 
 Prints a table and a JSON summary (medians over ``--repeats`` runs, interleaved with the clone timings so that
 both see the same machine load).
 
-    python scripts/bench_elementwise.py                      # the full size
-    python scripts/bench_elementwise.py --shape 2 3 256 256  # a quick run
+    python benchmarks/bench_elementwise.py                      # the full size
+    python benchmarks/bench_elementwise.py --shape 2 3 256 256  # a quick run
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def bench(name: str, fn: Callable[[], object], reference: torch.Tensor, repeats:
     return {"op": name, "ms": 1e3 * op, "clone_ms": 1e3 * ref, "ratio": op / ref}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--shape", type=int, nargs=4, default=[8, 3, 1024, 1024], metavar=("B", "C", "H", "W"))
     parser.add_argument("--exposures", type=float, nargs="+", default=[1.0, 200.0, 40000.0])
@@ -59,7 +59,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     device, dtype = torch.device(args.device), getattr(torch, args.dtype)
     gen = torch.Generator().manual_seed(0)
