@@ -189,3 +189,46 @@ def test_cuda_matches_cpu() -> None:
     radiance = _radiance((2, 3, 16, 16), torch.device("cpu"), torch.float32)
     for fn in (tm.capture_modulo, tm.capture_intensity):
         assert torch.equal(fn(radiance.cuda(), 33.0, 8).cpu(), fn(radiance, 33.0, 8))
+
+
+class TestFloat32CountLimit:
+    """Regression: ``capture_modulo`` in float32 above 2**24 counts silently lost the low bits it keeps."""
+
+    def test_counts_beyond_float32_warn_naming_the_count_and_float64(self) -> None:
+        radiance = torch.tensor([[[[1.0, 2.0**25 + 4]]]])
+        with pytest.warns(
+            UserWarning, match=r"counts reach 33554436, beyond what torch.float32 holds exactly.*float64"
+        ):
+            tm.capture_modulo(radiance, 1.0, bits=8)
+        with pytest.warns(UserWarning, match=r"counts reach 33554432"):
+            tm.ModuloCapture(exposure=4.0, bits=8)(torch.full((1, 1, 1, 1), 2.0**23))
+
+    def test_within_the_limit_or_in_float64_is_silent(self, recwarn: pytest.WarningsRecorder) -> None:
+        tm.capture_modulo(torch.tensor([2.0**24]), 1.0, bits=8)
+        exact = tm.capture_modulo(torch.tensor([2.0**25 + 3], dtype=torch.float64), 1.0, bits=8)
+        tm.capture_intensity(torch.tensor([2.0**30]), 1.0, bits=8)  # clips at 255: exact
+        assert exact.tolist() == [3.0] and not recwarn.list
+
+
+class TestStraightThroughIsABool:
+    """Regression: ``straight_through="no"`` switched the straight-through gradient on."""
+
+    @pytest.mark.parametrize("flag", ["no", 0, 1, None])
+    def test_functions_and_modules_refuse_stand_ins(self, flag: object) -> None:
+        radiance = torch.ones(1, 1, 2, 2)
+        for fn in (tm.capture_modulo, tm.capture_intensity):
+            with pytest.raises(TypeError, match=f"straight_through must be a bool; got {flag!r}"):
+                fn(radiance, 1.0, 8, straight_through=flag)  # type: ignore[arg-type]
+        for module in (tm.ModuloCapture, tm.IntensityCapture):
+            with pytest.raises(TypeError, match="straight_through must be a bool"):
+                module(1.0, 8, straight_through=flag)  # type: ignore[arg-type]
+
+
+def test_tiling_is_importable_from_capture_and_tiling() -> None:
+    from torch_modulo import _tiling
+    from torch_modulo.capture import column_tiles
+
+    assert column_tiles is _tiling.column_tiles and CPU_TILE == _tiling.CPU_TILE
+    tiles = column_tiles(CPU_TILE * 3 + 5, 1)
+    assert tiles[0] == slice(0, CPU_TILE) and tiles[-1].stop == CPU_TILE * 3 + 5
+    assert column_tiles(0, 4) == []

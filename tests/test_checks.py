@@ -35,7 +35,7 @@ class TestCheckReal:
 
     @pytest.mark.parametrize("value", [False, "x", None, 1j])
     def test_refuses_non_reals(self, value: object) -> None:
-        with pytest.raises(TypeError, match="x must be a real number"):
+        with pytest.raises(TypeError, match="x must be a number"):
             check_real(value, "x")
 
     def test_nan_and_inf(self) -> None:
@@ -46,11 +46,13 @@ class TestCheckReal:
         assert check_real(math.inf, "x", allow_inf=True) == math.inf
         with pytest.raises(ValueError, match="finite; got -inf"):
             check_real(-math.inf, "x", allow_inf=True)
+        with pytest.raises(ValueError, match="x must be finite and >= 0; got nan"):
+            check_real(math.nan, "x", 0.0)
 
     def test_bounds(self) -> None:
-        with pytest.raises(ValueError, match="x must be > 0; got 0.0"):
+        with pytest.raises(ValueError, match="x must be finite and > 0; got 0.0"):
             check_real(0, "x", positive=True)
-        with pytest.raises(ValueError, match="x must be >= 1"):
+        with pytest.raises(ValueError, match="x must be finite and >= 1"):
             check_real(0.5, "x", 1)
         with pytest.raises(ValueError, match="x must be <= 1"):
             check_real(1.5, "x", high=1)
@@ -63,7 +65,7 @@ class TestCheckFlag:
 
     @pytest.mark.parametrize("value", ["no", "yes", 0, 1, None, 1.0])
     def test_refuses_truthy_stand_ins(self, value: object) -> None:
-        with pytest.raises(TypeError, match="f must be True or False"):
+        with pytest.raises(TypeError, match="f must be a bool"):
             check_flag(value, "f")
 
 
@@ -75,3 +77,34 @@ class TestCheckChoice:
     def test_refuses_others_naming_both(self, value: object) -> None:
         with pytest.raises(ValueError, match=r"neighborhood must be one of 4, 8; got"):
             check_choice(value, "neighborhood", (4, 8))
+
+
+class TestWhat:
+    """``what=`` states the whole requirement in the message, for checks a single bound does not describe."""
+
+    def test_real(self) -> None:
+        for bad in (0.0, 2.0, math.nan, math.inf):
+            with pytest.raises(ValueError, match=r"^eps must be in \(0, 1\); got "):
+                check_real(bad, "eps", positive=True, high=1.0, what="in (0, 1)")
+        with pytest.raises(TypeError, match="eps must be a number"):
+            check_real("x", "eps", what="in (0, 1)")
+
+    def test_int_and_choice(self) -> None:
+        with pytest.raises(ValueError, match="^width must be a positive int; got 0$"):
+            check_int(0, "width", 1, what="a positive int")
+        with pytest.raises(ValueError, match="^byteorder must be 'little' or 'big'; got 'middle'$"):
+            check_choice("middle", "byteorder", ("little", "big"), what="'little' or 'big'")
+
+
+class TestNonnegativeMax:
+    def test_returns_the_largest_value_or_raises(self) -> None:
+        import torch
+
+        from torch_modulo._checks import nonnegative_max
+
+        assert nonnegative_max(torch.tensor([0.0, 2.5, 1.0]), "x") == 2.5
+        assert nonnegative_max(torch.zeros(0), "x") == 0.0
+        with pytest.raises(ValueError, match="x must be >= 0; got min -1.0"):
+            nonnegative_max(torch.tensor([-1.0, 2.0]), "x")
+        with pytest.raises(ValueError, match="1 NaN"):
+            nonnegative_max(torch.tensor([math.nan, 2.0]), "x")

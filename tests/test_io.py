@@ -447,3 +447,86 @@ class TestAtomicWrite:
         out = write_image(str(tmp_path / "s.tif"), torch.zeros(1, 1, 1))
         assert isinstance(out, Path) and out.exists()
         json.dumps(read_metadata(str(out)))  # metadata of a plain file is JSON-ready too
+
+
+@pytest.fixture
+def tiny_tmpfs(tmp_path: Path) -> Path:
+    """A 64 KiB tmpfs (needs root and permission to mount; the test is skipped otherwise)."""
+    if not hasattr(os, "geteuid") or os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    import subprocess
+
+    mount = tmp_path / "full"
+    mount.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)], capture_output=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode(errors='replace').strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)
+
+
+class TestFullDisk:
+    """Regression: ``write_image`` to .png on a full disk returned success and left a truncated file."""
+
+    def _noise(self) -> torch.Tensor:
+        gen = torch.Generator().manual_seed(7)
+        return torch.randint(0, 256, (3, 200, 200), generator=gen).float()  # incompressible: about 120 KB
+
+    @pytest.mark.parametrize("ext", [".png", ".exr", ".tif"])
+    def test_full_disk_raises_and_leaves_nothing(self, tiny_tmpfs: Path, ext: str) -> None:
+        with pytest.raises(OSError, match=re.escape(str(tiny_tmpfs / f"a{ext}"))):
+            write_image(tiny_tmpfs / f"a{ext}", self._noise())
+        assert os.listdir(tiny_tmpfs) == []
+
+    def test_full_disk_keeps_the_previous_png(self, tiny_tmpfs: Path) -> None:
+        path = write_image(tiny_tmpfs / "a.png", torch.zeros(1, 4, 4))
+        with pytest.raises(OSError, match="No space left on device"):
+            write_image(path, self._noise())
+        assert os.listdir(tiny_tmpfs) == ["a.png"] and torch.equal(read_image(path), torch.zeros(1, 4, 4))
+
+    def test_short_png_write_is_caught(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        # Without a full disk: a writer that reports success but leaves half the file, as libpng does.
+        real_create = oiio.ImageOutput.create
+
+        class ShortWriter:
+            def __init__(self, name: str) -> None:
+                self.name, self.out = name, real_create(name)
+
+            def open(self, name: str, spec: oiio.ImageSpec) -> bool:
+                return self.out.open(name, spec)
+
+            def write_image(self, array: np.ndarray) -> bool:
+                return self.out.write_image(array)
+
+            def close(self) -> bool:
+                ok = self.out.close()
+                with open(self.name, "r+b") as f:
+                    f.truncate(os.path.getsize(self.name) // 2)
+                return ok
+
+            def geterror(self) -> str:
+                return self.out.geterror()
+
+        class Factory:
+            create = staticmethod(ShortWriter)
+
+        monkeypatch.setattr(tmio.oiio, "ImageOutput", Factory)
+        with pytest.raises(OSError, match=re.escape(str(tmp_path / "a.png"))):
+            write_image(tmp_path / "a.png", self._noise())
+        assert _listing(tmp_path) == []
+
+
+class TestFlags:
+    """Regression: flags were taken by truthiness (``normalized="no"`` switched normalisation on)."""
+
+    @pytest.mark.parametrize("flag", ["no", 0, 1, None])
+    def test_flags_must_be_bools(self, tmp_path: Path, flag: object) -> None:
+        with pytest.raises(TypeError, match=f"normalized must be a bool; got {flag!r}"):
+            write_image(tmp_path / "a.png", torch.zeros(1, 2, 2), normalized=flag)  # type: ignore[arg-type]
+        path = write_image(tmp_path / "a.png", torch.zeros(1, 2, 2))
+        with pytest.raises(TypeError, match="normalized must be a bool"):
+            read_image(path, normalized=flag)  # type: ignore[arg-type]
+        with pytest.raises(TypeError, match="with_metadata must be a bool"):
+            read_image(path, with_metadata=flag)  # type: ignore[arg-type]

@@ -477,3 +477,58 @@ class TestSSIMToneMapped:
         per_image = torch.cat([ssim_tonemapped(a, b, window_size=5) for a, b in zip(x, y, strict=True)])
         torch.testing.assert_close(out, per_image)
         assert ssim_tonemapped(x[:0], y[:0]).shape == (0,)
+
+
+class TestPSNRExtremeValues:
+    """Regression: ``psnr`` in float32 gave NaN near 1e20 and +-inf for tiny or huge values that differ."""
+
+    @pytest.mark.parametrize(
+        ("x", "y", "peak"),
+        [
+            ([[1e20, 3e20]], [[2e20, 1e20]], 1e20),  # squares overflow float32
+            ([[1e-30, 0.0]], [[0.0, 0.0]], 1.0),  # squares underflow float32
+            ([[3e38, -3e38]], [[-3e38, 3e38]], 1.0),  # even the differences overflow float32
+            ([[1e-45, 0.0]], [[0.0, 0.0]], 1e38),
+        ],
+    )
+    def test_float32_scores_are_finite_and_match_float64(self, x: list, y: list, peak: float) -> None:
+        xt, yt = torch.tensor(x), torch.tensor(y)
+        got = psnr(xt, yt, peak)
+        want = psnr(xt.double(), yt.double(), peak)
+        assert got.dtype == torch.float32 and torch.isfinite(got).all()
+        torch.testing.assert_close(got, want.float(), rtol=1e-6, atol=1e-4)
+
+    def test_float64_beyond_squaring_range_is_finite(self) -> None:
+        x = torch.tensor([[1e200, 0.0]], dtype=torch.float64)
+        y = torch.tensor([[1e-300, 0.0]], dtype=torch.float64)
+        got = psnr(x, torch.zeros_like(x), 1.0)
+        assert math.isclose(float(got[0]), -10 * (400 - math.log10(2)), rel_tol=1e-12)
+        assert math.isclose(float(psnr(y, torch.zeros_like(y), 1.0)[0]), 10 * (600 + math.log10(2)), rel_tol=1e-12)
+
+    def test_identical_images_still_score_inf(self) -> None:
+        x = torch.tensor([[1e20, 3e20]])
+        assert psnr(x, x.clone(), 1.0).tolist() == [math.inf]
+
+
+class TestExactKIntegerInputs:
+    """Regression: ``exact_k_map`` on uint8 tensors raised ZeroDivisionError (the period 256 wrapped to 0)."""
+
+    @pytest.mark.parametrize("integer", [torch.uint8, torch.int16, torch.int32, torch.int64])
+    def test_integer_counts_give_the_float_result(self, integer: torch.dtype) -> None:
+        truth = torch.tensor([[10.0, 100.0], [20.0, 127.0]])
+        restored = torch.tensor([[10.0, 100.0], [20.0, 126.0]])
+        want = exact_k_map(restored, truth, bits=4)
+        got = exact_k_map(restored.to(integer), truth.to(integer), bits=4)
+        assert torch.equal(got, want)
+        assert torch.equal(
+            exact_k_map(restored.to(integer), truth.to(integer), bits=8), torch.ones(2, 2, dtype=torch.bool)
+        )
+        assert exact_k_share(restored.to(integer), truth.to(integer), bits=8).tolist() == [1.0]
+
+    @pytest.mark.parametrize("flag", ["no", 0, 1, None])
+    def test_align_must_be_a_bool(self, flag: object) -> None:
+        x = torch.zeros(2, 2)
+        with pytest.raises(TypeError, match=f"align must be a bool; got {flag!r}"):
+            exact_k_map(x, x, align=flag)  # type: ignore[arg-type]
+        with pytest.raises(TypeError, match="align must be a bool"):
+            exact_k_share(x, x, align=flag)  # type: ignore[arg-type]

@@ -32,6 +32,7 @@ __all__ = [
     "check_nonnegative",
     "check_tensor",
     "exposure_tensor",
+    "nonnegative_max",
 ]
 
 #: Largest bit depth whose integers (up to 2**bits) each floating dtype holds exactly.
@@ -43,20 +44,38 @@ MAX_BITS: dict[torch.dtype, int] = {
 }
 
 
-def check_int(value: object, name: str, low: int | None = None, high: int | None = None) -> int:
+def check_int(
+    value: object, name: str, low: int | None = None, high: int | None = None, *, what: str | None = None
+) -> int:
     """Return ``value`` as ``int`` if it is an integer (not a bool) in ``[low, high]``; else raise.
+
+    Args:
+        value: the argument to check.
+        name: its name, for the message.
+        low: smallest allowed value (inclusive), or ``None``.
+        high: largest allowed value (inclusive), or ``None``.
+        what: the requirement as the message should state it (``"an odd positive integer"``); by default the
+            message names the bound that failed.
 
     Raises:
         TypeError: ``value`` is not an integer (floats, strings and bools are refused).
         ValueError: ``value`` is below ``low`` or above ``high``.
+
+    Example:
+        >>> check_int(3, "bins", 2)
+        3
+        >>> check_int(1, "bins", 2)
+        Traceback (most recent call last):
+        ...
+        ValueError: bins must be >= 2; got 1
     """
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be an integer; got {value!r}")
     value = int(value)
     if low is not None and value < low:
-        raise ValueError(f"{name} must be >= {low}; got {value}")
+        raise ValueError(f"{name} must be {what or f'>= {low}'}; got {value}")
     if high is not None and value > high:
-        raise ValueError(f"{name} must be <= {high}; got {value}")
+        raise ValueError(f"{name} must be {what or f'<= {high}'}; got {value}")
     return value
 
 
@@ -68,6 +87,7 @@ def check_real(
     positive: bool = False,
     high: float | None = None,
     allow_inf: bool = False,
+    what: str | None = None,
 ) -> float:
     """Return ``value`` as ``float`` if it is a real number (not a bool) within the bounds; else raise.
 
@@ -78,22 +98,41 @@ def check_real(
         positive: require ``value > 0``.
         high: largest allowed value (inclusive), or ``None``.
         allow_inf: accept ``+inf`` (NaN is always refused).
+        what: the requirement as every ``ValueError`` message should state it (``"a positive finite number"``,
+            ``"in (0, 100]"``); by default the message names the condition that failed.
 
     Raises:
         TypeError: ``value`` is not a real number.
         ValueError: NaN, infinite (unless allowed) or out of bounds.
+
+    Example:
+        >>> check_real(0.0, "gamma", positive=True)
+        Traceback (most recent call last):
+        ...
+        ValueError: gamma must be finite and > 0; got 0.0
+        >>> check_real(2, "gamma", positive=True)
+        2.0
+        >>> check_real(0.0, "gamma", positive=True, what="a positive finite number")
+        Traceback (most recent call last):
+        ...
+        ValueError: gamma must be a positive finite number; got 0.0
     """
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number; got {value!r}")
+        raise TypeError(f"{name} must be a number; got {value!r}")
     value = float(value)
-    if math.isnan(value) or (math.isinf(value) and not (allow_inf and value > 0)):
-        raise ValueError(f"{name} must be finite; got {value}")
-    if positive and value <= 0:
-        raise ValueError(f"{name} must be > 0; got {value}")
-    if low is not None and value < low:
-        raise ValueError(f"{name} must be >= {low}; got {value}")
+
+    def fail(requirement: str) -> ValueError:
+        return ValueError(f"{name} must be {what or requirement}; got {value}")
+
+    bad_inf = math.isinf(value) and not (allow_inf and value > 0)
+    if low is not None and (math.isnan(value) or bad_inf or value < low):
+        raise fail(f"finite and >= {low:g}")
+    if positive and (math.isnan(value) or bad_inf or value <= 0):
+        raise fail("finite and > 0")
+    if math.isnan(value) or bad_inf:
+        raise fail("finite")
     if high is not None and value > high:
-        raise ValueError(f"{name} must be <= {high}; got {value}")
+        raise fail(f"<= {high:g}")
     return value
 
 
@@ -103,11 +142,22 @@ def check_flag(value: object, name: str) -> bool:
         return value
     if type(value).__module__ == "numpy" and type(value).__name__ in ("bool", "bool_"):
         return bool(value)
-    raise TypeError(f"{name} must be True or False; got {value!r}")
+    raise TypeError(f"{name} must be a bool; got {value!r}")
 
 
-def check_choice(value: Any, name: str, choices: Collection[Any]) -> Any:
-    """Return ``value`` if it is one of ``choices``; unhashable or unknown values get a ``ValueError`` naming both."""
+def check_choice(value: Any, name: str, choices: Collection[Any], *, what: str | None = None) -> Any:
+    """Return ``value`` if it is one of ``choices``; unhashable or unknown values get a ``ValueError`` naming both.
+
+    ``what`` replaces the list of choices in the message (``"'little' or 'big'"``).
+
+    Example:
+        >>> check_choice("png", "format", ("exr", "png"))
+        'png'
+        >>> check_choice("jpg", "format", ("exr", "png"))
+        Traceback (most recent call last):
+        ...
+        ValueError: format must be one of 'exr', 'png'; got 'jpg'
+    """
     try:
         ok = value in choices
     except TypeError:
@@ -115,8 +165,8 @@ def check_choice(value: Any, name: str, choices: Collection[Any]) -> Any:
     if isinstance(value, bool) and not any(isinstance(c, bool) for c in choices):
         ok = False  # True == 1: a flag is not a number
     if not ok:
-        shown = ", ".join(repr(c) for c in sorted(choices, key=repr))
-        raise ValueError(f"{name} must be one of {shown}; got {value!r}")
+        shown = what or "one of " + ", ".join(repr(c) for c in sorted(choices, key=repr))
+        raise ValueError(f"{name} must be {shown}; got {value!r}")
     return value
 
 
@@ -172,14 +222,26 @@ def check_finite(x: torch.Tensor, name: str) -> torch.Tensor:
 
 def check_nonnegative(x: torch.Tensor, name: str) -> torch.Tensor:
     """Raise ``ValueError`` if ``x`` is not finite or holds negative values (one reduction pass when valid)."""
-    if x.numel():
-        lo, hi = torch.aminmax(x.detach())
-        lo_f, hi_f = float(lo), float(hi)
-        if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
-            check_finite(x, name)
-        if lo_f < 0:
-            raise ValueError(f"{name} must be >= 0; got min {lo_f}")
+    nonnegative_max(x, name)
     return x
+
+
+def nonnegative_max(x: torch.Tensor, name: str) -> float:
+    """Validate ``x`` as :func:`check_nonnegative` does and return its largest value (0.0 when empty).
+
+    Example:
+        >>> nonnegative_max(torch.tensor([0.5, 3.0]), "radiance")
+        3.0
+    """
+    if not x.numel():
+        return 0.0
+    lo, hi = torch.aminmax(x.detach())
+    lo_f, hi_f = float(lo), float(hi)
+    if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
+        check_finite(x, name)
+    if lo_f < 0:
+        raise ValueError(f"{name} must be >= 0; got min {lo_f}")
+    return hi_f
 
 
 def check_modulus(modulus: torch.Tensor, bits: int, name: str = "modulus") -> torch.Tensor:
@@ -259,10 +321,11 @@ def exposure_tensor(
     else:
         raise TypeError(f"{name} must be a positive number, a sequence of numbers or a tensor; got {exposure!r}")
     if tau.numel():
-        finite = torch.isfinite(tau)
+        values = tau.detach()
+        finite = torch.isfinite(values)
         if not bool(finite.all()):
-            raise ValueError(f"{name} must be finite; got {tau[~finite].flatten()[0].item()}")
-        lo = float(tau.min())
+            raise ValueError(f"{name} must be finite; got {values[~finite].flatten()[0].item()}")
+        lo = float(values.min())
         if lo <= 0:
             raise ValueError(f"{name} must be positive; got {lo}")
     return tau

@@ -12,24 +12,36 @@ Gradients:
       ``d I_m / d E = tau`` (and 0 where the intensity sensor clips), which is what training pipelines that
       learn through the sensor usually want.
 
+Precision:
+    Counts are held in the radiance's dtype, which holds integers exactly only up to ``2**24`` in float32
+    (``2**11`` in float16, ``2**8`` in bfloat16): :func:`capture_modulo` warns when the counts go beyond that,
+    because their low bits, the ones a modulo sensor keeps, are then lost. Use float64 radiance for such counts.
+
 Speed:
     Without autograd the outputs are computed in place in a single freshly allocated buffer with cheap
-    floating-point operations (``x - P * floor(x / P)`` instead of ``torch.remainder``), which keeps these
-    layers close to the cost of ``tensor.clone()`` (see ``scripts/bench_elementwise.py``).
+    floating-point operations (``x - P * floor(x / P)`` instead of ``torch.remainder``); on the CPU the work runs
+    tile by tile through cache-sized buffers (:mod:`torch_modulo._tiling`), so these layers cost about as much as
+    ``tensor.clone()``.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import torch
 from torch import nn
 
 from torch_modulo._checks import (
+    MAX_BITS,
     check_bits,
     check_finite,
+    check_flag,
     check_floating,
-    check_nonnegative,
     exposure_tensor,
+    nonnegative_max,
 )
+from torch_modulo._tiling import CPU_TILE as CPU_TILE  # re-exported: the tiling used to live here
+from torch_modulo._tiling import column_tiles as column_tiles
 
 __all__ = [
     "IntensityCapture",
@@ -43,17 +55,6 @@ __all__ = [
 
 def _needs_grad(*tensors: torch.Tensor) -> bool:
     return torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
-
-
-#: Elements per tile for the in-place CPU kernels: small enough that a tile and its scratch stay in cache, so
-#: the data crosses main memory once (allocating and faulting in full-size temporaries costs more than the math).
-CPU_TILE = 1 << 19
-
-
-def column_tiles(n: int, rows: int) -> list[slice]:
-    """Column slices of a (rows, n) array so that each tile holds about ``CPU_TILE`` elements (>= 1024 columns)."""
-    width = max(1024, CPU_TILE // max(rows, 1))
-    return [slice(start, min(start + width, n)) for start in range(0, n, width)]
 
 
 def _wrap_rows_(y: torch.Tensor, period: float, scratch: torch.Tensor) -> torch.Tensor:
@@ -159,8 +160,11 @@ def _capture(
     """Validate, then ``floor(exposure * radiance)`` wrapped (or clipped) with the chosen gradient."""
     check_floating(radiance, "radiance")
     bits = check_bits(bits, radiance.dtype)
-    check_nonnegative(radiance, "radiance")
+    straight_through = check_flag(straight_through, "straight_through")
+    peak = nonnegative_max(radiance, "radiance")
     tau = _broadcast_exposure(exposure_tensor(exposure, radiance), radiance)
+    if not clip:
+        _warn_inexact_counts(peak, tau, radiance.dtype)
     period = float(2**bits)
     if not _needs_grad(radiance, tau):
         return _elementwise_(radiance, tau, period, floor=True, clip_top=period - 1 if clip else None)
@@ -171,6 +175,21 @@ def _capture(
     if clip:
         return torch.clamp(counts, max=period - 1)
     return counts - period * torch.floor(counts / period).detach()
+
+
+def _warn_inexact_counts(peak: float, tau: torch.Tensor, dtype: torch.dtype) -> None:
+    """Warn when the largest count ``floor(peak * max(tau))`` is beyond the integers ``dtype`` holds exactly."""
+    limit = MAX_BITS.get(dtype)
+    if limit is None or peak == 0.0 or not tau.numel():
+        return
+    top = peak * float(tau.detach().max())
+    if top >= 2.0**limit + 1:
+        warnings.warn(
+            f"counts reach {top:.0f}, beyond what {dtype} holds exactly (2**{limit} = {2**limit}): their low bits, "
+            "which the modulo sensor keeps, are lost; use float64 radiance for exact counts",
+            UserWarning,
+            stacklevel=4,
+        )
 
 
 def capture_modulo(
@@ -191,8 +210,15 @@ def capture_modulo(
             (``d I_m / d E = tau``); by default floor's true zero gradient is kept.
 
     Returns:
-        Modulus image of integers in ``[0, 2**bits)``, same shape, dtype and device as ``radiance``. Counts
-        above ``2**24`` are not exact in float32: use float64 radiance for them.
+        Modulus image of integers in ``[0, 2**bits)``, same shape, dtype and device as ``radiance``.
+
+    Raises:
+        TypeError: ``radiance`` is not a floating tensor, ``bits`` not an integer or ``straight_through`` not a bool.
+        ValueError: negative, NaN or infinite radiance, a bad exposure, or more bits than the dtype holds.
+
+    Warns:
+        UserWarning: the counts go beyond the integers the dtype holds exactly (``2**24`` in float32), so their
+        low bits are lost; float64 radiance keeps them.
 
     Example:
         >>> capture_modulo(torch.tensor([0.5, 100.0, 300.0]), exposure=2.0, bits=8)
@@ -250,7 +276,7 @@ class _Capture(nn.Module):
     def __init__(self, exposure: float | torch.Tensor = 1.0, bits: int = 8, straight_through: bool = False) -> None:
         super().__init__()
         self.bits = check_bits(bits, torch.float64)
-        self.straight_through = bool(straight_through)
+        self.straight_through = check_flag(straight_through, "straight_through")
         tau = exposure_tensor(exposure, torch.empty((), dtype=torch.float64))
         self.register_buffer("exposure", tau, persistent=False)
 

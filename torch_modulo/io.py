@@ -43,7 +43,10 @@ Orientation
     so PFM files from other tools read the right way up.
 
 Writes are atomic: the image goes to a hidden temporary file with the same extension in the destination folder,
-which then replaces the destination (``os.replace``), so a reader never sees a half-written file.
+which is checked, flushed to the disk (``fsync``) and only then renamed over the destination (``os.replace``), so
+a reader never sees a half-written file. PNG files are read back and compared with the image before the rename,
+because the PNG writer does not report a short write (a full disk); every other format reports it itself. A
+failed write raises ``OSError`` and leaves nothing under the destination's name.
 
 Errors: a missing file raises ``FileNotFoundError``; a file OpenImageIO cannot read (unknown format, not an image,
 truncated, corrupted) raises ``OSError``; a bad image or value to write raises ``TypeError``/``ValueError``. Every
@@ -54,9 +57,9 @@ from __future__ import annotations
 
 import errno
 import json
-import math
 import os
 import secrets
+import shutil
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -67,16 +70,21 @@ import numpy as np
 import OpenImageIO as oiio
 import torch
 
+from torch_modulo._checks import check_flag
+from torch_modulo._image_metadata import (
+    BLOB_KEY,
+    METADATA_ATTRIBUTE,
+    check_metadata,
+    metadata_from_spec,
+    native_attribute,
+)
+
 __all__ = [
     "WRITABLE_EXTENSIONS",
     "read_image",
     "read_metadata",
     "write_image",
 ]
-
-#: The JSON attribute that holds the metadata dict (EXR and PNG); TIFF keeps it in ``ImageDescription``.
-METADATA_ATTRIBUTE = "torch_modulo:metadata"
-_BLOB_KEY = "torch_modulo_metadata"
 
 
 @dataclass(frozen=True)
@@ -115,38 +123,6 @@ _DTYPE_ALIASES: dict[object, str] = {
 _INT_MAX = {"uint8": 255, "uint16": 65535}
 _NUMPY = {"uint8": np.uint8, "uint16": np.uint16, "half": np.float32, "float": np.float32}
 _HALF_MAX = 65504.0
-
-#: Attribute names OpenImageIO or the format interpret; metadata keys with these names (or with a ':') are kept
-#: only in the JSON text, never written as native attributes that would change how the file is written.
-_RESERVED = {
-    "compression",
-    "name",
-    "datetime",
-    "orientation",
-    "pixelaspectratio",
-    "screenwindowcenter",
-    "screenwindowwidth",
-    "imagedescription",
-    "documentname",
-    "software",
-    "artist",
-    "copyright",
-    "xresolution",
-    "yresolution",
-    "resolutionunit",
-    "planarconfig",
-    "channelnames",
-    "datawindow",
-    "displaywindow",
-    "lineorder",
-    "type",
-    "version",
-    "chunkcount",
-    "tiles",
-    "channels",
-    "capdate",
-    "utcoffset",
-}
 
 
 # --------------------------------------------------------------------------------------------------- helpers
@@ -191,96 +167,6 @@ def _errors(obj: oiio.ImageInput | oiio.ImageOutput | None = None) -> str:
     messages = [obj.geterror() if obj is not None else "", oiio.geterror()]
     text = "; ".join(m.strip() for m in messages if m and m.strip())
     return text or "unknown OpenImageIO error"
-
-
-def _to_python(value: Any) -> Any:
-    if isinstance(value, tuple):
-        return [_to_python(v) for v in value]
-    return value
-
-
-def _decode_blob(text: object) -> dict[str, Any] | None:
-    if not isinstance(text, str) or _BLOB_KEY not in text:
-        return None
-    try:
-        data = json.loads(text)
-    except ValueError:
-        return None
-    if isinstance(data, dict) and isinstance(data.get(_BLOB_KEY), dict):
-        return data[_BLOB_KEY]
-    return None
-
-
-def _metadata_from_spec(spec: oiio.ImageSpec) -> dict[str, Any]:
-    native: dict[str, Any] = {}
-    stored: dict[str, Any] | None = None
-    for attribute in spec.extra_attribs:
-        name = attribute.name
-        if name == METADATA_ATTRIBUTE:
-            stored = _decode_blob(attribute.value)
-            continue
-        if name == "ImageDescription":
-            blob = _decode_blob(attribute.value)
-            if blob is not None:
-                stored = stored if stored is not None else blob
-                continue
-        native[name] = _to_python(attribute.value)
-    if stored is not None:
-        native.update(stored)
-    return native
-
-
-def _jsonable(value: Any, where: str) -> Any:
-    """A JSON-ready copy of a metadata value; tensors and numpy values become lists and numbers."""
-    if isinstance(value, torch.Tensor):
-        return _jsonable(value.detach().cpu().tolist(), where)
-    if isinstance(value, np.ndarray | np.generic):
-        return _jsonable(value.tolist(), where)
-    if value is None or isinstance(value, bool | int | float | str):
-        return value
-    if isinstance(value, list | tuple):
-        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(value)]
-    if isinstance(value, Mapping):
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise TypeError(f"metadata keys must be strings; got {k!r} in {where}")
-            out[k] = _jsonable(v, f"{where}[{k!r}]")
-        return out
-    raise TypeError(
-        f"metadata value {where} has type {type(value).__name__}, which cannot be stored; use numbers, strings, "
-        "booleans, None, lists or dicts"
-    )
-
-
-def _check_metadata(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
-    if metadata is None:
-        return {}
-    if not isinstance(metadata, Mapping):
-        raise TypeError(f"metadata must be a dict; got {type(metadata).__name__}")
-    return _jsonable(metadata, "metadata")
-
-
-def _native_attribute(spec: oiio.ImageSpec, key: str, value: Any) -> None:
-    """Write a simple metadata value as a native attribute (EXR); anything else stays in the JSON text only."""
-    if ":" in key or key.lower() in _RESERVED or key.startswith("oiio") or not key:
-        return
-    if isinstance(value, bool):
-        spec.attribute(key, int(value))
-    elif isinstance(value, int):
-        if -(2**31) <= value < 2**31:
-            spec.attribute(key, value)
-    elif isinstance(value, float):
-        if math.isfinite(value):
-            spec.attribute(key, value)
-    elif isinstance(value, str):
-        spec.attribute(key, value)
-    elif (
-        isinstance(value, list)
-        and value
-        and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value)
-    ):
-        spec.attribute(key, oiio.TypeDesc(f"float[{len(value)}]"), tuple(float(v) for v in value))
 
 
 def _channel_names(channels: int, exr: bool) -> list[str] | None:
@@ -414,7 +300,7 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     path = _path(path)
     inp = _open(path)
     try:
-        return _metadata_from_spec(inp.spec())
+        return metadata_from_spec(inp.spec())
     finally:
         inp.close()
 
@@ -454,6 +340,8 @@ def read_image(
         ...     read_image(path)
         tensor([[[  0.,   7., 255.]]])
     """
+    with_metadata = check_flag(with_metadata, "with_metadata")
+    normalized = check_flag(normalized, "normalized")
     if dtype not in (torch.float32, torch.float64):
         raise TypeError(f"dtype must be torch.float32 or torch.float64; got {dtype}")
     path = _path(path)
@@ -468,7 +356,7 @@ def read_image(
         pixels = inp.read_image(0, 0, 0, spec.nchannels, fmt)
         if pixels is None:
             raise OSError(f"cannot read image {path}: {_errors(inp)}")
-        metadata = _metadata_from_spec(spec) if with_metadata else None
+        metadata = metadata_from_spec(spec) if with_metadata else None
         # Files with fewer bits than their container (12-bit TIFF, 1/2/4-bit PNG) are expanded by OpenImageIO to
         # the container's full range; shift back to the stored integers.
         stored_bits = spec.get_int_attribute("oiio:BitsPerSample", 0)
@@ -548,8 +436,9 @@ def write_image(
         True
     """
     path = _path(path)
+    normalized = check_flag(normalized, "normalized")
     fmt = _format_for_writing(path)
-    meta = _check_metadata(metadata)
+    meta = check_metadata(metadata)
     kind = _resolve_dtype(dtype, fmt, path, meta)
     pixels = _pixels(image, path)
     h, w, c = pixels.shape
@@ -567,11 +456,11 @@ def write_image(
         spec.channelnames = tuple(names)
     spec.attribute("oiio:UnassociatedAlpha", 1)
     if meta:
-        blob = json.dumps({_BLOB_KEY: meta}, allow_nan=True)
+        blob = json.dumps({BLOB_KEY: meta}, allow_nan=True)
         if fmt.metadata == "attribute":
             if fmt.name == "OpenEXR":
                 for key, value in meta.items():
-                    _native_attribute(spec, key, value)
+                    native_attribute(spec, key, value)
             spec.attribute(METADATA_ATTRIBUTE, blob)
         elif fmt.metadata == "description":
             spec.attribute("ImageDescription", blob)
@@ -584,21 +473,61 @@ def write_image(
             )
 
     tmp = _temporary_sibling(path)
+    try:
+        _write_checked(tmp, spec, np.ascontiguousarray(array), fmt, path)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _write_checked(tmp: Path, spec: oiio.ImageSpec, array: np.ndarray, fmt: _Format, path: Path) -> None:
+    """Write ``array`` to ``tmp``, check what landed on the disk, and flush it there; ``OSError`` on any failure."""
     out = oiio.ImageOutput.create(str(tmp))
     if out is None:
         raise OSError(f"cannot write {path}: {_errors()}")
+    if not out.open(str(tmp), spec):
+        raise OSError(f"cannot write {path}: {_errors(out)}")
+    ok = out.write_image(array)
+    closed = out.close()
+    if not ok or not closed:
+        raise OSError(f"cannot write {path}: {_errors(out)}")
+    if fmt.name == "PNG":
+        _verify(tmp, array, path)
+    fd = os.open(tmp, os.O_RDONLY)
     try:
-        if not out.open(str(tmp), spec):
-            raise OSError(f"cannot write {path}: {_errors(out)}")
-        ok = out.write_image(np.ascontiguousarray(array))
-        closed = out.close()
-        if not ok or not closed:
-            raise OSError(f"cannot write {path}: {_errors(out)}")
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            tmp.unlink()
-        except FileNotFoundError:
-            pass
-        raise
-    return path
+        if os.fstat(fd).st_size == 0:
+            raise _short_write(path, "the file is empty")
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _verify(tmp: Path, array: np.ndarray, path: Path) -> None:
+    """Read ``tmp`` back and compare it with ``array``: the PNG writer does not report a short write."""
+    try:
+        inp = _open(tmp)
+    except OSError as exc:
+        raise _short_write(path, str(exc)) from None
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, spec.format)
+        problem = None if pixels is not None else _errors(inp)
+    finally:
+        inp.close()
+    if problem is None and not np.array_equal(np.asarray(pixels).reshape(array.shape), array):
+        problem = "the file read back differs from the image"
+    if problem is not None:
+        raise _short_write(path, problem)
+
+
+def _short_write(path: Path, problem: str) -> OSError:
+    """The error for a file that did not reach the disk whole; a full file system is named as such."""
+    try:
+        full = shutil.disk_usage(path.parent).free == 0
+    except OSError:
+        full = False
+    if full:
+        return OSError(errno.ENOSPC, f"cannot write {path}: {os.strerror(errno.ENOSPC)} ({problem})")
+    return OSError(errno.EIO, f"cannot write {path}: {problem}")

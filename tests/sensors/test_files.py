@@ -321,3 +321,104 @@ class TestErrors:
         back = FileSensor(tmp_path).read()
         assert back == stack and back.kind == "intensity"
         assert torch.equal(read_image(tmp_path / "frame_b000_m01.tif"), stack.frames[0, 1])
+
+
+def _hidden(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+class TestWriteFramesIsAtomic:
+    """Regression: a failure half-way through ``write_frames`` left a mixed stack (new frame 0, old frame 1, old
+    manifest) in an existing folder, or a one-frame stack without a manifest in a new one."""
+
+    def _failing_write_image(self, monkeypatch: pytest.MonkeyPatch, after: int) -> None:
+        import torch_modulo.sensors.files as files
+
+        real = files.write_image
+        calls = {"n": 0}
+
+        def write_image(path: Path, *args: object, **kwargs: object) -> Path:
+            calls["n"] += 1
+            if calls["n"] > after:
+                raise OSError(28, "No space left on device", str(path))
+            return real(path, *args, **kwargs)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(files, "write_image", write_image)
+
+    def test_failure_into_an_existing_stack_keeps_the_old_stack(
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        folder = tmp_path / "stack"
+        old = FrameStack(_moduli((1, 2, 1, 4, 4), 8, seed=1), [1.0, 8.0], 8)
+        write_frames(old, folder)
+        self._failing_write_image(monkeypatch, after=1)
+        new = FrameStack(_moduli((1, 2, 1, 4, 4), 8, seed=2), [1.0, 8.0], 8)
+        with pytest.raises(OSError, match="No space left on device") as error:
+            write_frames(new, folder)
+        assert error.value.filename == str(folder.resolve() / "frame_b000_m01.exr")
+        monkeypatch.undo()
+        assert FileSensor(folder).read() == old
+        assert _hidden(tmp_path) == [] and _hidden(folder) == []
+
+    def test_failure_into_a_new_folder_leaves_nothing(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        self._failing_write_image(monkeypatch, after=1)
+        with pytest.raises(OSError):
+            write_frames(FrameStack(_moduli((1, 2, 1, 4, 4), 8), [1.0, 8.0], 8), tmp_path / "stack")
+        assert list(tmp_path.iterdir()) == []
+
+    def test_other_files_are_kept_and_old_frames_dropped(self, tmp_path: Path) -> None:
+        folder = tmp_path / "stack"
+        write_frames(FrameStack(_moduli((1, 3, 1, 4, 4), 8, seed=1), [1.0, 4.0, 16.0], 8), folder)
+        (folder / "notes.txt").write_text("scene lit from the left")
+        (folder / "raw").mkdir()
+        (folder / "raw" / "dump.bin").write_bytes(b"\0\1")
+        new = FrameStack(_moduli((1, 2, 1, 4, 4), 8, seed=2), [2.0, 8.0], 8)
+        write_frames(new, folder)
+        names = sorted(p.name for p in folder.iterdir())
+        assert names == ["frame_b000_m00.exr", "frame_b000_m01.exr", "frames.json", "notes.txt", "raw"]
+        assert (folder / "notes.txt").read_text() == "scene lit from the left"
+        assert (folder / "raw" / "dump.bin").read_bytes() == b"\0\1"
+        assert FileSensor(folder).read() == new and _hidden(tmp_path) == []
+
+    def test_symlinked_folder_stays_a_link(self, tmp_path: Path) -> None:
+        (tmp_path / "real").mkdir()
+        (tmp_path / "link").symlink_to(tmp_path / "real", target_is_directory=True)
+        stack = FrameStack(_moduli((1, 2, 1, 4, 4), 8), [1.0, 8.0], 8)
+        write_frames(stack, tmp_path / "link")
+        assert (tmp_path / "link").is_symlink() and FileSensor(tmp_path / "real").read() == stack
+
+    def test_writing_into_the_working_folder(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        folder = tmp_path / "stack"
+        folder.mkdir()
+        monkeypatch.chdir(folder)
+        stack = FrameStack(_moduli((1, 2, 1, 4, 4), 8), [1.0, 8.0], 8)
+        write_frames(stack, ".")
+        write_frames(stack, ".")
+        assert FileSensor(".").read() == stack  # "." is the new folder, not the deleted old one
+
+
+class TestManifestPathsStayInside:
+    """Regression: FileSensor followed frame paths in frames.json that point outside the stack folder."""
+
+    @pytest.mark.parametrize("name", ["../outside.png", "sub/../../outside.png", "/etc/outside.png"])
+    def test_paths_leading_out_are_refused_naming_them(self, tmp_path: Path, name: str) -> None:
+        folder = tmp_path / "stack"
+        folder.mkdir()
+        write_image(tmp_path / "outside.png", torch.zeros(1, 2, 2), {"exposure": 1.0, "bits": 8})
+        (folder / MANIFEST).write_text(json.dumps({"bits": 8, "frames": [{"file": name, "exposure": 1.0}]}))
+        with pytest.raises(ValueError, match=f"frame file '{name}' points outside the stack folder"):
+            FileSensor(folder)
+
+    def test_paths_inside_subfolders_are_fine(self, tmp_path: Path) -> None:
+        (tmp_path / "sub").mkdir()
+        write_image(tmp_path / "sub" / "a.png", torch.full((1, 2, 2), 3.0), {"exposure": 2.0, "bits": 8})
+        (tmp_path / MANIFEST).write_text(json.dumps({"bits": 8, "frames": ["sub/./a.png"]}))
+        stack = FileSensor(tmp_path).read()
+        assert stack.exposures.tolist() == [2.0] and float(stack.moduli.max()) == 3.0
+
+
+def test_raw_format_sizes_must_be_integers() -> None:
+    with pytest.raises(TypeError, match="RawFormat.width must be an integer; got '4'"):
+        RawFormat(width="4", height=4, bits=12)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="RawFormat.sample_bytes must be 1, 2 or 4"):
+        RawFormat(width=4, height=4, bits=8, sample_bytes=True)  # type: ignore[arg-type]

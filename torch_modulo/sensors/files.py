@@ -10,7 +10,8 @@ Where :class:`FileSensor` finds each frame's exposure and the bit depth, first m
 
    Optional keys: ``"kind"`` (``"modulo"`` or ``"intensity"``), ``"metadata"`` (a dict), ``"exposures"`` (the
    stack's exposures as (M,) or (B, M) lists), and per frame ``"batch"`` and ``"index"`` (its place in a
-   (B, M, C, H, W) stack; by default frames are the exposures of one scene, in the listed order);
+   (B, M, C, H, W) stack; by default frames are the exposures of one scene, in the listed order). Frame files
+   are named relative to the manifest's folder and may not lead out of it (``../x.png`` or ``/x.png`` is refused);
 3. a JSON sidecar per frame, ``<file>.json`` or ``<stem>.json`` (``short.png.json`` or ``short.json``), with
    ``"exposure"`` and ``"bits"``;
 4. the frame's own metadata (EXR attributes, or the metadata :func:`torch_modulo.io.write_image` stores in PNG and
@@ -29,19 +30,18 @@ from __future__ import annotations
 
 import errno
 import json
-import math
 import os
-import secrets
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
 
-from torch_modulo._checks import check_bits, check_modulus
+from torch_modulo._checks import check_bits, check_choice, check_int, check_modulus, check_real
 from torch_modulo.io import read_image, write_image
+from torch_modulo.sensors._swap import replace_folder
 from torch_modulo.sensors.frames import KINDS, FrameStack
 
 __all__ = [
@@ -59,6 +59,7 @@ IMAGE_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm", ".hdr")
 _EXPOSURE_KEYS = ("exposure", "exposure_time", "ExposureTime")
 _BITS_KEYS = ("bits", "bit_depth")
 _FORMAT_TAG = "torch_modulo.frames"
+_T = TypeVar("_T")
 _DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32, "float64": torch.float64}
 
 
@@ -76,6 +77,10 @@ class RawFormat:
         offset: bytes to skip at the start of each file.
         extensions: file extensions that mark raw frames when a folder is read.
 
+    Raises:
+        TypeError: a size, the bit depth or the offset is not an integer.
+        ValueError: a value out of range, an unknown byte order, or a sample size that cannot hold ``bits``.
+
     Example:
         >>> RawFormat(width=640, height=512, bits=12).frame_bytes
         655360
@@ -92,23 +97,16 @@ class RawFormat:
 
     def __post_init__(self) -> None:
         for name in ("width", "height", "channels"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"RawFormat.{name} must be a positive int; got {value!r}")
-        bits = check_bits(self.bits, torch.float64)
-        if bits > 32:
-            raise ValueError(f"RawFormat.bits must be at most 32; got {bits}")
-        if self.byteorder not in ("little", "big"):
-            raise ValueError(f"RawFormat.byteorder must be 'little' or 'big'; got {self.byteorder!r}")
+            check_int(getattr(self, name), f"RawFormat.{name}", 1, what="a positive int")
+        bits = check_int(check_bits(self.bits, torch.float64), "RawFormat.bits", high=32, what="at most 32")
+        check_choice(self.byteorder, "RawFormat.byteorder", ("little", "big"), what="'little' or 'big'")
         smallest = 1 if bits <= 8 else 2 if bits <= 16 else 4
         nbytes = smallest if self.sample_bytes is None else self.sample_bytes
-        if nbytes not in (1, 2, 4) or nbytes < smallest:
-            raise ValueError(
-                f"RawFormat.sample_bytes must be 1, 2 or 4 and hold {bits} bits (at least {smallest}); "
-                f"got {self.sample_bytes!r}"
-            )
-        if isinstance(self.offset, bool) or not isinstance(self.offset, int) or self.offset < 0:
-            raise ValueError(f"RawFormat.offset must be an int >= 0; got {self.offset!r}")
+        what = f"1, 2 or 4 and hold {bits} bits (at least {smallest})"
+        check_choice(nbytes, "RawFormat.sample_bytes", (1, 2, 4), what=what)
+        if nbytes < smallest:
+            raise ValueError(f"RawFormat.sample_bytes must be {what}; got {nbytes!r}")
+        check_int(self.offset, "RawFormat.offset", 0, what="an int >= 0")
         object.__setattr__(self, "sample_bytes", nbytes)
         object.__setattr__(self, "extensions", tuple(e.lower() for e in self.extensions))
 
@@ -159,24 +157,37 @@ def _first(mapping: Mapping[str, Any], keys: Sequence[str]) -> Any:
     return None
 
 
+def _from_source(check: Callable[..., _T], value: Any, *args: Any, **kwargs: Any) -> _T:
+    """Run a scalar check on a value read from a file or given for one: any failure is a ``ValueError``."""
+    try:
+        return check(value, *args, **kwargs)
+    except TypeError as exc:
+        raise ValueError(str(exc)) from None
+
+
 def _positive(value: Any, what: str, source: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{what} from {source} must be a positive number; got {value!r}")
-    value = float(value)
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"{what} from {source} must be a positive finite number; got {value}")
-    return value
+    return _from_source(check_real, value, f"{what} from {source}", positive=True, what="a positive finite number")
 
 
 def _bits_value(value: Any, source: object) -> int:
     if isinstance(value, float) and value.is_integer():
         value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"bits from {source} must be an integer; got {value!r}")
+    value = _from_source(check_int, value, f"bits from {source}")
     try:
         return check_bits(value, torch.float64)
     except ValueError as exc:
         raise ValueError(f"bits from {source}: {exc}") from None
+
+
+def _inside(manifest: Path, name: str) -> Path:
+    """The frame file ``name`` listed in ``manifest``, refused when the name leads out of the manifest's folder."""
+    relative = os.path.normpath(name)
+    if os.path.isabs(relative) or relative == os.pardir or relative.startswith(os.pardir + os.sep):
+        raise ValueError(
+            f"{manifest}: frame file {name!r} points outside the stack folder {manifest.parent}; "
+            "list frames by their names inside that folder"
+        )
+    return manifest.parent / relative
 
 
 def _sidecar(path: Path) -> Path | None:
@@ -243,8 +254,8 @@ class FileSensor:
             raise TypeError(f"raw must be a RawFormat or None; got {type(raw).__name__}")
         if dtype is not None and dtype not in _DTYPES.values():
             raise TypeError(f"dtype must be a floating torch dtype; got {dtype}")
-        if kind is not None and kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
+        if kind is not None:
+            check_choice(kind, "kind", KINDS)
         self.raw = raw
         self.bits = _bits_value(bits, "the bits argument") if bits is not None else None
         if exposures is not None:
@@ -313,7 +324,7 @@ class FileSensor:
                 entry = {"file": entry}
             if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
                 raise ValueError(f'{manifest}: frame {i} must be a file name or an object with "file"; got {entry!r}')
-            path = manifest.parent / entry["file"]
+            path = _inside(manifest, entry["file"])
             frame = _Frame(path)
             where = f"{manifest} (frame {entry['file']})"
             if entry.get("exposure") is not None:
@@ -322,17 +333,14 @@ class FileSensor:
                 frame.bits = _bits_value(entry["bits"], where)
             for key in ("batch", "index"):
                 if key in entry:
-                    value = entry[key]
-                    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                        raise ValueError(f"{where}: {key!r} must be an int >= 0; got {value!r}")
-                    setattr(frame, key, value)
+                    setattr(frame, key, _from_source(check_int, entry[key], f"{where}: {key!r}", 0, what="an int >= 0"))
             frames.append(frame)
         if data.get("bits") is not None:
             bits = _bits_value(data["bits"], manifest)
             for frame in frames:
                 frame.bits = frame.bits if frame.bits is not None else bits
-        if data.get("kind") is not None and data["kind"] not in KINDS:
-            raise ValueError(f"{manifest}: kind must be one of {KINDS}; got {data['kind']!r}")
+        if data.get("kind") is not None:
+            check_choice(data["kind"], f"{manifest}: kind", KINDS)
         if data.get("metadata") is not None and not isinstance(data["metadata"], dict):
             raise ValueError(f"{manifest}: metadata must be an object; got {type(data['metadata']).__name__}")
         self.manifest = data
@@ -469,12 +477,16 @@ def write_frames(
     """Write a :class:`FrameStack` to a folder so that ``FileSensor(folder).read()`` gives it back exactly.
 
     One file per frame, ``{prefix}_b{batch:03d}_m{index:02d}.{ext}``, each with its exposure and bit depth in its
-    own metadata, plus the manifest ``frames.json`` (written last, atomically) with the bit depth, kind, exposures,
-    metadata and layout.
+    own metadata, plus the manifest ``frames.json`` with the bit depth, kind, exposures, metadata and layout.
+
+    The stack is written atomically: everything goes to a hidden folder beside ``folder``, which then takes
+    ``folder``'s place in one rename. If anything fails, ``folder`` is left as it was: the previous stack whole,
+    or no folder at all. Other files in ``folder`` are kept; the previous stack's frames (those its manifest
+    lists) and files of the same names as the new frames are replaced.
 
     Args:
         stack: the frames.
-        folder: destination folder (created if missing). Files of the same names are replaced.
+        folder: destination folder (created if missing, with its parents).
         format: ``"exr"`` (half for bits <= 11, else float; up to 24 bits), ``"png"`` or ``"tiff"`` (8-bit for
             bits <= 8, else 16-bit; up to 16 bits).
         prefix: file name prefix.
@@ -485,6 +497,8 @@ def write_frames(
     Raises:
         TypeError: ``stack`` is not a FrameStack, or its metadata is not JSON-serialisable.
         ValueError: unknown format, or a bit depth the format cannot hold.
+        OSError: a frame or the manifest could not be written (a full disk, no permission); ``folder`` is then
+            unchanged.
 
     Example:
         >>> import tempfile
@@ -497,8 +511,7 @@ def write_frames(
     if not isinstance(stack, FrameStack):
         raise TypeError(f"stack must be a FrameStack; got {type(stack).__name__}")
     formats = {"exr": ".exr", "png": ".png", "tiff": ".tif", "tif": ".tif"}
-    if format not in formats:
-        raise ValueError(f"format must be one of {sorted(formats)}; got {format!r}")
+    check_choice(format, "format", formats)
     if not isinstance(prefix, str) or not prefix or os.sep in prefix or prefix.startswith("."):
         raise ValueError(f"prefix must be a plain, non-hidden file name prefix; got {prefix!r}")
     bits = stack.bits
@@ -513,16 +526,9 @@ def write_frames(
         dtype = "uint8" if bits <= 8 else "uint16"
     metadata = _json_ready(stack.metadata, "stack.metadata")
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     taus = stack.exposure_matrix().tolist()
     moduli = stack.moduli.detach().cpu()
-    entries = []
-    for b in range(stack.batch_size):
-        for m in range(stack.num_exposures):
-            name = f"{prefix}_b{b:03d}_m{m:02d}{ext}"
-            write_image(folder / name, moduli[b, m], {"exposure": taus[b][m], "bits": bits}, dtype=dtype)
-            entries.append({"file": name, "batch": b, "index": m, "exposure": taus[b][m]})
-    manifest = {
+    manifest: dict[str, Any] = {
         "format": _FORMAT_TAG,
         "version": 1,
         "bits": bits,
@@ -531,14 +537,30 @@ def write_frames(
         "dtype": str(stack.dtype).replace("torch.", ""),
         "exposures": stack.exposures.tolist(),
         "metadata": metadata,
-        "frames": entries,
+        "frames": [],
     }
-    path = folder / MANIFEST
-    tmp = folder / f".{MANIFEST}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+
+    def build(tmp: Path) -> None:
+        for b in range(stack.batch_size):
+            for m in range(stack.num_exposures):
+                name = f"{prefix}_b{b:03d}_m{m:02d}{ext}"
+                write_image(tmp / name, moduli[b, m], {"exposure": taus[b][m], "bits": bits}, dtype=dtype)
+                manifest["frames"].append({"file": name, "batch": b, "index": m, "exposure": taus[b][m]})
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, allow_nan=True))
+
+    replace_folder(folder, build, _stack_files(folder))
+    return folder / MANIFEST
+
+
+def _stack_files(folder: Path) -> set[str]:
+    """Names in ``folder`` that belong to the stack its manifest describes (the manifest and its frames)."""
+    names = {MANIFEST}
     try:
-        tmp.write_text(json.dumps(manifest, indent=1, allow_nan=True))
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+        entries = json.loads((folder / MANIFEST).read_text()).get("frames", [])
+    except (OSError, ValueError, AttributeError):
+        return names
+    for entry in entries if isinstance(entries, list) else []:
+        name = entry.get("file") if isinstance(entry, dict) else entry
+        if isinstance(name, str) and name and os.path.basename(name) == name:
+            names.add(name)
+    return names

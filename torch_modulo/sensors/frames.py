@@ -14,7 +14,7 @@ from typing import Any
 
 import torch
 
-from torch_modulo._checks import check_bits, check_floating, check_modulus, exposure_tensor
+from torch_modulo._checks import check_bits, check_choice, check_floating, check_modulus, exposure_tensor
 
 __all__ = ["KINDS", "FrameStack"]
 
@@ -82,8 +82,7 @@ class FrameStack:
                 f"exposures must have shape (M,) = ({m},) or (B, M) = ({b}, {m}) for moduli of shape "
                 f"{tuple(moduli.shape)}; got {tuple(tau.shape)}"
             )
-        if kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS}; got {kind!r}")
+        check_choice(kind, "kind", KINDS)
         if metadata is None:
             metadata = {}
         if not isinstance(metadata, Mapping):

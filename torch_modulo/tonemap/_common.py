@@ -1,0 +1,176 @@
+"""What every tone-mapping operator shares: input validation, luminance, the sRGB encoding and the tiled CPU path.
+
+The tiled CPU path (no autograd, CPU tensor) reads the batch once for its statistics, then maps it tile by tile
+through cache-sized scratch buffers with in-place arithmetic and one write of the output; each operation on a
+tile runs on PyTorch's intra-op threads (see :mod:`torch_modulo._tiling`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import kornia
+import torch
+
+from torch_modulo._checks import check_floating, check_image_shape, check_nonnegative, check_real
+from torch_modulo._tiling import CPU_TILE, column_tiles, tile_on_cpu
+
+__all__ = ["REC709_LUMA", "luminance"]
+
+#: Luminance weights of linear Rec.709 (sRGB) primaries: ``Y = 0.2126 R + 0.7152 G + 0.0722 B``.
+REC709_LUMA: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
+
+#: Elements per tile: these kernels keep several (B, n) buffers per tile, so they take half the shared tile size.
+TILE = CPU_TILE // 2
+
+
+def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
+    """Validate an HDR image and return it as (B, C, H, W) with its original shape."""
+    check_floating(hdr, name)
+    assert isinstance(hdr, torch.Tensor)
+    check_image_shape(hdr, name, 2, 4)
+    shape = hdr.shape
+    x = hdr
+    if x.dim() == 2:
+        x = x[None, None]
+    elif x.dim() == 3:
+        x = x[None]
+    if x.shape[1] not in (1, 3):
+        raise ValueError(
+            f"{name} must have 1 (grey) or 3 (linear Rec.709 RGB) channels; got {x.shape[1]} in shape {tuple(shape)}"
+        )
+    if x.numel():
+        # One fused pass: NaN propagates through min/max, infinities show as extremes.
+        lo, hi = torch.aminmax(x.detach())
+        lo_f, hi_f = float(lo), float(hi)
+        if not (math.isfinite(lo_f) and math.isfinite(hi_f)) or lo_f < 0:
+            check_nonnegative(x.detach(), name)
+    return x, shape
+
+
+def needs_grad(x: torch.Tensor) -> bool:
+    return torch.is_grad_enabled() and x.requires_grad
+
+
+def tiled(x: torch.Tensor) -> bool:
+    """Whether to take the in-place CPU path (no autograd, CPU tensor)."""
+    return tile_on_cpu(x)
+
+
+def pixel_tiles(n: int, rows: int) -> list[slice]:
+    """Slices of the ``n`` pixels of a (rows, n) view, each tile holding about :data:`TILE` elements."""
+    return column_tiles(n, rows, tile=TILE, min_width=64)
+
+
+def encode(out: torch.Tensor, srgb: bool) -> torch.Tensor:
+    """Optionally apply the sRGB transfer function (values stay in [0, 1])."""
+    if not srgb:
+        return out
+    if out.shape[1] == 1:
+        return kornia.color.linear_rgb_to_rgb(out.expand(-1, 3, -1, -1))[:, :1].clamp(0.0, 1.0)
+    return kornia.color.linear_rgb_to_rgb(out).clamp(0.0, 1.0)
+
+
+def luminance(image: torch.Tensor) -> torch.Tensor:
+    """Luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` of (B, 3, H, W) linear RGB, or the grey channel itself.
+
+    Args:
+        image: (B, C, H, W) with C = 1 or 3 (no value checks).
+
+    Returns:
+        (B, 1, H, W) luminance on the input's device and dtype.
+
+    Example:
+        >>> luminance(torch.ones(1, 3, 1, 2))
+        tensor([[[[1., 1.]]]])
+    """
+    if image.dim() != 4 or image.shape[1] not in (1, 3):
+        raise ValueError(f"image must have shape (B, 1, H, W) or (B, 3, H, W); got {tuple(image.shape)}")
+    if image.shape[1] == 1:
+        return image
+    r, g, b = image[:, 0:1], image[:, 1:2], image[:, 2:3]
+    return r * REC709_LUMA[0] + g * REC709_LUMA[1] + b * REC709_LUMA[2]
+
+
+def _luminance_tile(tile: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """Luminance of a (B, C, n) tile written into the (B, n) buffer ``out``."""
+    if tile.shape[1] == 1:
+        return out.copy_(tile[:, 0])
+    torch.mul(tile[:, 0], REC709_LUMA[0], out=out)
+    out.add_(tile[:, 1], alpha=REC709_LUMA[1])
+    return out.add_(tile[:, 2], alpha=REC709_LUMA[2])
+
+
+#: A tile kernel turns luminance (B, n) into the factor that scales R, G, B, using scratch buffers (B, n).
+TileKernel = Callable[[torch.Tensor, list[torch.Tensor]], torch.Tensor]
+
+
+def map_tiled(x: torch.Tensor, kernel: TileKernel, n_scratch: int, index_scratch: bool = False) -> torch.Tensor:
+    """CPU path: ``out = clip(x * kernel(Y), 0, 1)`` tile by tile through cache-sized scratch buffers."""
+    b, c, h, w = x.shape
+    n = h * w
+    x3 = x.reshape(b, c, n)
+    out = torch.empty((b, c, h, w), dtype=x.dtype, device=x.device)
+    o3 = out.view(b, c, n)
+    tiles = pixel_tiles(n, b)
+    step = tiles[0].stop if tiles else 0
+    y = torch.empty((b, step), dtype=x.dtype, device=x.device)
+    scratch = [torch.empty((b, step), dtype=x.dtype, device=x.device) for _ in range(n_scratch)]
+    if index_scratch:
+        scratch.append(torch.empty((b, step), dtype=torch.long, device=x.device))
+    for cols in tiles:
+        m = cols.stop - cols.start
+        tile = x3[:, :, cols]
+        ratio = kernel(_luminance_tile(tile, y[:, :m]), [buf[:, :m] for buf in scratch])
+        for ch in range(c):
+            torch.mul(tile[:, ch], ratio, out=o3[:, ch, cols]).clamp_(0.0, 1.0)
+    return out
+
+
+def luminance_stats_tiled(x: torch.Tensor, log_offset: float | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """One read of the batch: per-image max luminance and, if ``log_offset`` is given, sum of log(Y + offset).
+
+    Partial results are kept per tile and added in tile order, so the result does not depend on threading.
+    """
+    b, c, h, w = x.shape
+    n = h * w
+    x3 = x.reshape(b, c, n)
+    tiles = pixel_tiles(n, b)
+    step = tiles[0].stop if tiles else 0
+    maxima = torch.zeros((len(tiles), b), dtype=x.dtype, device=x.device)
+    sums = None if log_offset is None else torch.zeros((len(tiles), b), dtype=torch.float64, device=x.device)
+    y = torch.empty((b, step), dtype=x.dtype, device=x.device)
+    for i, cols in enumerate(tiles):
+        yt = _luminance_tile(x3[:, :, cols], y[:, : cols.stop - cols.start])
+        torch.amax(yt, dim=1, out=maxima[i])
+        if sums is not None:
+            torch.sum(yt.add_(log_offset).log_(), dim=1, dtype=torch.float64, out=sums[i])
+    return maxima.amax(dim=0), None if sums is None else sums.sum(dim=0)
+
+
+def col(v: torch.Tensor) -> torch.Tensor:
+    """(B,) -> (B, 1) for broadcasting against (B, n) tiles."""
+    return v.reshape(-1, 1)
+
+
+def img(v: torch.Tensor) -> torch.Tensor:
+    """(B,) -> (B, 1, 1, 1) for broadcasting against (B, C, H, W)."""
+    return v.reshape(-1, 1, 1, 1)
+
+
+def restore(out: torch.Tensor, shape: torch.Size) -> torch.Tensor:
+    """Give a (B, C, H, W) result the caller's original shape."""
+    return out.reshape(shape)
+
+
+#: Range of ``exposure`` (in stops) for the gamma and logarithmic mappings: ``2**exposure`` is then a normal
+#: float64, neither overflowing to infinity nor vanishing.
+EXPOSURE_STOPS: tuple[int, int] = (-1022, 1023)
+
+
+def check_exposure_stops(exposure: object) -> float:
+    """Validate an exposure adjustment in stops (a finite real number within :data:`EXPOSURE_STOPS`)."""
+    value = check_real(exposure, "exposure")
+    low, high = EXPOSURE_STOPS
+    return check_real(value, "exposure", low, high=high, what=f"within [{low}, {high}] stops")
