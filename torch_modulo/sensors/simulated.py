@@ -32,9 +32,7 @@ and for every instance with the same ``fpn_seed``.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
@@ -45,9 +43,11 @@ from torch_modulo._checks import (
     check_floating,
     check_image_shape,
     check_nonnegative,
+    check_real,
     exposure_tensor,
 )
 from torch_modulo.capture import capture_intensity, capture_modulo
+from torch_modulo.noise import NoiseModel, as_noise_model
 from torch_modulo.sensors.frames import FrameStack
 
 __all__ = [
@@ -57,66 +57,6 @@ __all__ = [
     "fixed_pattern_gain",
     "simulate_capture",
 ]
-
-
-def _nonnegative_number(value: object, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise TypeError(f"{name} must be a number; got {value!r}")
-    value = float(value)
-    if not math.isfinite(value) or value < 0:
-        raise ValueError(f"{name} must be finite and >= 0; got {value}")
-    return value
-
-
-@dataclass(frozen=True)
-class NoiseModel:
-    """Noise of a digital-pixel sensor (see the module docstring for the equations).
-
-    The default is a small, realistic noise: photon shot noise with one electron per count (a photon-counting
-    pixel, variance in counts = mean) and 1 electron rms read noise; no dark current, no fixed pattern.
-
-    Args:
-        electrons_per_count: ``q``, the threshold charge that makes one counter pulse (the quantisation step), > 0.
-            Larger values average shot noise down in counts: its variance is ``mean / q``.
-        read_noise: ``sigma_r``, read/reset noise in electrons rms per frame, >= 0 (``read_noise / q`` counts).
-        dark_current: ``D``, electrons per unit exposure, >= 0 (a dark frame's mean is ``D tau / q`` counts).
-        prnu: ``sigma_g``, relative standard deviation of the fixed-pattern gain (0.01 = 1 %), >= 0.
-        shot_noise: draw the collected charge from a Poisson distribution (True) or use its mean (False).
-
-    Raises:
-        TypeError: a parameter is not a number (or ``shot_noise`` not a bool).
-        ValueError: a parameter is negative or not finite, or ``electrons_per_count`` is 0.
-
-    Example:
-        >>> NoiseModel(read_noise=2.0).is_noiseless
-        False
-        >>> NoiseModel(shot_noise=False, read_noise=0.0).is_noiseless
-        True
-    """
-
-    electrons_per_count: float = 1.0
-    read_noise: float = 1.0
-    dark_current: float = 0.0
-    prnu: float = 0.0
-    shot_noise: bool = True
-
-    def __post_init__(self) -> None:
-        q = _nonnegative_number(self.electrons_per_count, "electrons_per_count")
-        if q == 0:
-            raise ValueError("electrons_per_count must be > 0; got 0.0")
-        object.__setattr__(self, "electrons_per_count", q)
-        for name in ("read_noise", "dark_current", "prnu"):
-            object.__setattr__(self, name, _nonnegative_number(getattr(self, name), name))
-        if not isinstance(self.shot_noise, bool):
-            raise TypeError(f"shot_noise must be a bool; got {self.shot_noise!r}")
-
-    @property
-    def is_noiseless(self) -> bool:
-        """True when every term is off: the sensor then reads ``floor(tau E)`` exactly."""
-        return not self.shot_noise and self.read_noise == 0 and self.dark_current == 0 and self.prnu == 0
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def fixed_pattern_gain(
@@ -136,7 +76,7 @@ def fixed_pattern_gain(
         >>> torch.equal(g, fixed_pattern_gain((1, 64, 64), prnu=0.01, seed=3)), round(float(g.std()), 2)
         (True, 0.01)
     """
-    prnu = _nonnegative_number(prnu, "prnu")
+    prnu = check_real(prnu, "prnu", 0.0)
     generator = torch.Generator().manual_seed(int(seed))
     gain = 1.0 + prnu * torch.randn(tuple(shape), generator=generator, dtype=torch.float64)
     return gain.clamp_(min=0.0).to(device=device, dtype=dtype)
@@ -170,7 +110,7 @@ def simulate_capture(
         radiance: ``E`` >= 0 in counts per unit exposure, (B, C, H, W) or (C, H, W).
         exposures: ``tau`` > 0: a float, (M,) shared by the batch, or (B, M).
         bits: counter bit depth ``N``.
-        noise: the :class:`NoiseModel`, or None for a noise-free sensor (then this equals
+        noise: the :class:`NoiseModel` (or a preset name), or None for a noise-free sensor (then this equals
             :func:`~torch_modulo.capture_modulo` exactly, unless a ``gain`` map is given).
         wrap: True for a modulo sensor (Eq. 1), False for a conventional sensor that clips at ``2**bits - 1``.
         generator: random source for shot and read noise (and for the gain map when ``gain`` is None); its device
@@ -199,8 +139,7 @@ def simulate_capture(
     check_floating(radiance, "radiance")
     check_image_shape(radiance, "radiance", min_dims=3, max_dims=4)
     bits = check_bits(bits, radiance.dtype)
-    if noise is not None and not isinstance(noise, NoiseModel):
-        raise TypeError(f"noise must be a NoiseModel or None; got {type(noise).__name__}")
+    noise = as_noise_model(noise)
     unbatched = radiance.dim() == 3
     x = radiance.detach().unsqueeze(0) if unbatched else radiance.detach()
     b = x.shape[0]
@@ -262,6 +201,12 @@ def simulate_capture(
     return counts[0] if unbatched else counts
 
 
+def _seed(value: object, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{name} must be an int; got {value!r}")
+    return int(value)
+
+
 class _SimulatedSensor(nn.Module):
     _wrap: bool = True
     _kind: str = "modulo"
@@ -269,29 +214,22 @@ class _SimulatedSensor(nn.Module):
     def __init__(
         self,
         bits: int = 8,
-        noise: NoiseModel | None = NoiseModel(),  # noqa: B008 (frozen, immutable default)
+        noise: NoiseModel | str | None = NoiseModel(),  # noqa: B008 (frozen, immutable default)
         *,
         seed: int = 0,
         fpn_seed: int | None = None,
     ) -> None:
         super().__init__()
         self.bits = check_bits(bits, torch.float64)
-        if noise is not None and not isinstance(noise, NoiseModel):
-            raise TypeError(f"noise must be a NoiseModel or None; got {type(noise).__name__}")
-        for name, value in (("seed", seed), ("fpn_seed", fpn_seed)):
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
-                raise TypeError(f"{name} must be an int; got {value!r}")
-        self.noise = noise
-        self.seed = int(seed)
-        self.fpn_seed = int(fpn_seed) if fpn_seed is not None else self.seed + 1
+        self.noise = as_noise_model(noise)
+        self.seed = _seed(seed, "seed")
+        self.fpn_seed = _seed(fpn_seed, "fpn_seed") if fpn_seed is not None else self.seed + 1
         self._generators: dict[torch.device, torch.Generator] = {}
         self._gains: dict[tuple[Any, ...], torch.Tensor] = {}
 
     def manual_seed(self, seed: int) -> _SimulatedSensor:
         """Restart the shot/read noise streams from ``seed`` (the fixed pattern is kept). Returns the sensor."""
-        if isinstance(seed, bool) or not isinstance(seed, int):
-            raise TypeError(f"seed must be an int; got {seed!r}")
-        self.seed = int(seed)
+        self.seed = _seed(seed, "seed")
         self._generators.clear()
         return self
 
@@ -347,8 +285,10 @@ class SimulatedModuloSensor(_SimulatedSensor):
 
     Args:
         bits: counter bit depth ``N``.
-        noise: a :class:`NoiseModel` (default: shot noise and 1 e- read noise), or None for the noise-free
-            sensor of Eq. 1 (exactly :func:`~torch_modulo.capture_modulo`).
+        noise: a :class:`NoiseModel` (default: the photon-counting pixel, shot noise with one electron per count
+            and 1 e- read noise, as the command line's ``simulate``), a preset name (``"photon-counting"``,
+            ``"q16"``, ``"dfpa"``: :meth:`NoiseModel.preset`), or None for the noise-free sensor of Eq. 1 (exactly
+            :func:`~torch_modulo.capture_modulo`).
         seed: seed of the shot/read noise generator; the same seed gives the same frames on every run.
         fpn_seed: seed of the fixed-pattern gain (default ``seed + 1``); fixed for the sensor's lifetime.
 

@@ -1,0 +1,133 @@
+"""Tests for torch_modulo/multishot/noisy.py: noise-aware decoding through unwrap_multi(..., noise=...)."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+import torch_modulo as tm
+from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
+
+PHOTON = NoiseModel()  # one electron per count, 1 e- read noise
+STOPS = 16
+
+
+def _scene(seed: int = 0, shape: tuple[int, ...] = (2, 3, 24, 24)) -> torch.Tensor:
+    """Radiance from 16 counts at exposure 1 (as protocol N's darkest) up to 2**STOPS counts."""
+    gen = torch.Generator().manual_seed(seed)
+    return torch.exp2(4 + torch.rand(shape, generator=gen, dtype=torch.float64) * (STOPS - 4))
+
+
+def _plan(noise: NoiseModel) -> list[float]:
+    plan = tm.plan_exposures(STOPS, 8, noise=noise)
+    return [t / plan[-1] for t in plan]
+
+
+def _gross(estimate: torch.Tensor, truth: torch.Tensor) -> float:
+    return float((((estimate - truth).abs() / truth) > 0.5).double().mean())
+
+
+class TestNoisyDecoding:
+    @pytest.mark.parametrize("noise", [PHOTON, NoiseModel.preset("q16")], ids=["q1", "q16"])
+    def test_regression_no_gross_errors_where_eqs_6_7_fail(self, noise: NoiseModel) -> None:
+        # On the frames of a noise-aware plan the new decoder is no more often 50% off than the oracle (the longest
+        # frame with its true rollover count); Eqs. 6-7 (paper), and the robust rule on a noise-blind plan, are
+        # far more often.
+        radiance = _scene()
+        taus = _plan(noise)
+        moduli = SimulatedModuloSensor(8, noise, seed=3)(radiance, taus).moduli
+        oracle = SimulatedIntensitySensor(53, noise, seed=3)(radiance, taus).frames[:, -1] / taus[-1]
+        decoded = _gross(tm.unwrap_multi(moduli, taus, 8, noise=noise), radiance)
+        assert decoded <= _gross(oracle, radiance) + 1e-3
+        assert _gross(tm.unwrap_multi(moduli, taus, 8, method="paper"), radiance) > decoded + 0.02
+        if noise != PHOTON:
+            return
+        blind = [t / 2.0 ** (STOPS - 8) for t in tm.plan_exposures(STOPS, 8)]
+        blind_moduli = SimulatedModuloSensor(8, noise, seed=3)(radiance, blind).moduli
+        assert _gross(tm.unwrap_multi(blind_moduli, blind, 8), radiance) > decoded + 0.02
+
+    def test_matches_the_oracle(self) -> None:
+        # Median relative error within 1.5x of the longest frame read with its true rollover count (same draws).
+        radiance = _scene(1)
+        taus = _plan(PHOTON)
+        moduli = SimulatedModuloSensor(8, PHOTON, seed=5)(radiance, taus).moduli
+        counts = SimulatedIntensitySensor(53, PHOTON, seed=5)(radiance, taus).frames[:, -1]
+        assert torch.equal(counts % 256, moduli[:, -1])
+        estimate = tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)
+        error = ((estimate - radiance).abs() / radiance).median()
+        oracle = ((counts / taus[-1] - radiance).abs() / radiance).median()
+        assert float(error) <= 1.5 * float(oracle)
+
+    def test_variance_is_calibrated(self) -> None:
+        radiance = _scene(2, (1, 1, 64, 64))
+        taus = _plan(PHOTON)
+        moduli = SimulatedModuloSensor(8, PHOTON, seed=7)(radiance, taus).moduli
+        estimate, variance = tm.unwrap_multi(moduli, taus, 8, noise=PHOTON, return_variance=True)
+        z = (estimate - radiance) / variance.sqrt()
+        assert 0.8 < float(z.std()) < 1.25
+        assert abs(float(z.mean())) < 0.1
+
+    def test_without_noise_nothing_changes(self) -> None:
+        radiance = _scene(3) * 0.5
+        taus = [1.0, 100.0, 10000.0]
+        moduli = SimulatedModuloSensor(8, None)(radiance / 2**STOPS * 255, taus).moduli
+        assert torch.equal(tm.unwrap_multi(moduli, taus, 8), tm.unwrap_multi(moduli, taus, 8, noise=None))
+
+    def test_quiet_model_is_exact_to_a_count(self) -> None:
+        # With little noise the ratios of the noise-free rule decode, and the estimate is the cell centre.
+        quiet = NoiseModel(read_noise=0.1, shot_noise=False)
+        radiance = _scene(4, (1, 1, 16, 16)) / 2 ** (STOPS - 8) * 0.9
+        taus = [1.0, 100.0, 10000.0]
+        moduli = SimulatedModuloSensor(8, None)(radiance, taus).moduli
+        counts = tm.unwrap_multi(moduli, taus, 8, noise=quiet, return_counts=True)
+        assert float((counts - radiance * taus[-1]).abs().max()) <= 1.0
+
+    def test_batched_equals_per_image_and_device(self, device: torch.device) -> None:
+        radiance = _scene(5)
+        taus = _plan(PHOTON)
+        moduli = SimulatedModuloSensor(8, PHOTON, seed=1)(radiance, taus).moduli.to(device)
+        batched = tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)
+        assert batched.device == moduli.device and batched.dtype == moduli.dtype
+        for i in range(moduli.shape[0]):
+            assert torch.equal(batched[i], tm.unwrap_multi(moduli[i], taus, 8, noise=PHOTON))
+        empty = tm.unwrap_multi(moduli[:0], taus, 8, noise=PHOTON)
+        assert empty.shape == (0, *moduli.shape[2:])
+
+    def test_module_equals_function_and_presets(self) -> None:
+        radiance = _scene(6)
+        taus = _plan(PHOTON)
+        moduli = SimulatedModuloSensor(8, "photon-counting", seed=1)(radiance, taus).moduli
+        layer = tm.MultiExposureUnwrap(bits=8, noise="photon-counting")
+        assert torch.equal(layer(moduli, taus), tm.unwrap_multi(moduli, taus, 8, noise=PHOTON))
+        assert "noise=NoiseModel" in repr(layer)
+
+    def test_unsafe_exposures_warn_and_say_what_to_use(self) -> None:
+        moduli = torch.zeros(3, 1, 2, 2)
+        with pytest.warns(UserWarning, match=r"exposure ratio 256 is unsafe.*plan_exposures\(24, bits=8"):
+            tm.unwrap_multi(moduli, [1.0, 256.0, 65536.0], 8, noise=PHOTON)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            tm.unwrap_multi(moduli, [1.0, 4.0, 16.0], 8, noise=PHOTON)  # safe ratios: no warning
+
+    def test_regression_exposures_that_require_grad(self) -> None:
+        taus = torch.tensor([1.0, 16.0], requires_grad=True)
+        moduli = torch.tensor([[[[3.0]]], [[[52.0]]]])
+        assert tm.unwrap_multi(moduli, taus, 8, return_counts=True).item() == 52.0
+        assert tm.unwrap_multi(moduli, taus, 8, noise=PHOTON).requires_grad is False
+
+    def test_bad_noise_input(self) -> None:
+        moduli = torch.zeros(2, 1, 2, 2)
+        with pytest.raises(TypeError, match="noise must be a NoiseModel or None; got dict"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], 8, noise={"read_noise": 1.0})
+        with pytest.raises(ValueError, match="noise preset must be one of .*; got 'loud'"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], 8, noise="loud")
+        with pytest.raises(ValueError, match="method='paper' .* takes no noise model"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], 8, method="paper", noise=PHOTON)
+        with pytest.raises(ValueError, match="return_variance=True needs a noise model"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], 8, return_variance=True)
+        with pytest.raises(ValueError, match="sigmas must be finite and > 0; got 0.0"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], 8, noise=PHOTON, sigmas=0)
+        with pytest.raises(TypeError, match="return_counts must be a bool; got 'no'"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], 8, return_counts="no")

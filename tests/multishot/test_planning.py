@@ -1,0 +1,116 @@
+"""Tests for torch_modulo/multishot/planning.py: exposure plans, noise-free and under noise."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+import torch_modulo as tm
+
+
+def _scene(shape: tuple[int, ...], stops: float, seed: int = 0, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """Random radiance spanning ``stops`` stops below 1 (so exposure 2**stops gives up to 2**stops counts)."""
+    gen = torch.Generator().manual_seed(seed)
+    return torch.exp2(-torch.rand(shape, generator=gen, dtype=torch.float64) * stops).to(dtype)
+
+
+def _stack(radiance: torch.Tensor, taus: list[float], bits: int) -> torch.Tensor:
+    return torch.stack([tm.capture_modulo(radiance, t, bits) for t in taus], dim=-4)
+
+
+def _ratios_to_taus(ratios: list[float]) -> list[float]:
+    taus = [1.0]
+    for r in ratios:
+        taus.append(taus[-1] * r)
+    return taus
+
+
+class TestPlanExposures:
+    def test_paper_claim_three_captures_cover_24_stops(self) -> None:
+        taus = tm.plan_exposures(24, bits=8, max_ratio=256)
+        assert taus == [1.0, 256.0, 65536.0]
+
+    @pytest.mark.parametrize(("stops", "bits", "count"), [(8, 8, 1), (5, 8, 1), (9, 8, 2), (16, 8, 3), (24, 8, 4)])
+    def test_counts(self, stops: float, bits: int, count: int) -> None:
+        taus = tm.plan_exposures(stops, bits)
+        assert len(taus) == count
+        ratios = [b / a for a, b in zip(taus, taus[1:], strict=False)]
+        assert all(r <= 2**bits - 1 + 1e-9 for r in ratios)
+        if count > 1:
+            assert math.log2(taus[-1] / taus[0]) == pytest.approx(stops - bits)
+
+    def test_plan_then_unwrap_recovers_scene(self) -> None:
+        taus = tm.plan_exposures(20, bits=8, base=1.0)
+        radiance = _scene((1, 3, 16, 16), stops=20, seed=4) * 255.9
+        counts = tm.unwrap_multi(_stack(radiance, taus, 8), taus, 8, return_counts=True)
+        assert torch.equal(counts, torch.floor(radiance * taus[-1]))
+        assert float(counts.min()) >= 1.0  # the darkest pixel still gets a count
+
+    @pytest.mark.parametrize(
+        ("kwargs", "match"),
+        [
+            ({"stops": -1}, "stops"),
+            ({"stops": float("nan")}, "stops"),
+            ({"stops": 10, "base": 0.0}, "base"),
+            ({"stops": 10, "max_ratio": 1.0}, "max_ratio"),
+            ({"stops": 10, "max_ratio": 300}, "max_ratio"),
+            ({"stops": 10, "bits": 0}, "bits"),
+        ],
+    )
+    def test_bad_input(self, kwargs: dict, match: str) -> None:
+        with pytest.raises(ValueError, match=match):
+            tm.plan_exposures(**kwargs)
+
+
+class TestPlanExposuresUnderNoise:
+    @pytest.mark.parametrize("preset", ["photon-counting", "q16", "dfpa"])
+    def test_plan_keeps_every_pixel_decodable(self, preset: str) -> None:
+        noise = tm.sensors.NoiseModel.preset(preset)
+        plan = tm.plan_exposures(18, 8, noise=noise)
+        assert plan[0] == 1.0 and plan == sorted(plan)
+        ratios = [b / a for a, b in zip(plan, plan[1:], strict=False)]
+        assert all(1 < r <= 255 for r in ratios)
+        safe, _ = tm.multishot.safe_ratio(8, noise)
+        assert max(ratios[:-1], default=1.0) <= safe  # gross-error-prone pixels always reach the next frame
+
+    def test_quieter_sensors_need_fewer_frames(self) -> None:
+        lengths = [len(tm.plan_exposures(20, 8, noise=p)) for p in ("photon-counting", "q16", "dfpa")]
+        assert lengths[0] > lengths[1] > lengths[2] >= 3
+        assert len(tm.plan_exposures(20, 8, noise="q16", tolerance=2.0)) <= lengths[1]
+
+    def test_shortest_exposure_keeps_the_brightest_below_rollover(self) -> None:
+        noise = tm.sensors.NoiseModel()
+        plan = tm.plan_exposures(16, 8, noise=noise)
+        brightest = 2.0**16 * plan[0] / plan[-1]  # E_max reads 2**16 counts at the longest exposure
+        assert brightest + 3 * noise.count_variance(brightest) ** 0.5 <= 255
+
+    def test_without_noise_unchanged(self) -> None:
+        assert tm.plan_exposures(24, 8, noise=None) == tm.plan_exposures(24, 8)
+
+    def test_regression_one_bit_counter_default_ratio(self) -> None:
+        plan = tm.plan_exposures(24, bits=1)
+        assert plan[:3] == [1.0, 2.0, 4.0] and len(plan) == 24
+
+    @pytest.mark.parametrize(
+        ("kwargs", "error", "match"),
+        [
+            ({"stops": 200, "base": 1e300}, ValueError, "stops=200 from base=1e\\+300 needs exposures beyond float64"),
+            ({"stops": 1100}, ValueError, "stops=1100 .* beyond float64"),
+            ({"stops": 10, "max_ratio": "x"}, TypeError, "max_ratio must be a number; got 'x'"),
+            ({"stops": 10, "noise": {"q": 1}}, TypeError, "noise must be a NoiseModel or None; got dict"),
+            ({"stops": 10, "noise": "loud"}, ValueError, "noise preset must be one of"),
+            ({"stops": 10, "noise": "q16", "tolerance": 0.5}, ValueError, "tolerance must be finite and >= 1"),
+            ({"stops": 10, "noise": "q16", "min_ratio": 1.0}, ValueError, "min_ratio must be in \\(1, max_ratio"),
+            ({"stops": 10, "noise": "q16", "sigmas": -1}, ValueError, "sigmas must be finite and > 0"),
+            (
+                {"stops": 10, "bits": 4, "noise": tm.sensors.NoiseModel(read_noise=8.0)},
+                ValueError,
+                "read noise alone exceeds the decoding gate",
+            ),
+        ],
+    )
+    def test_regression_bad_input_named(self, kwargs: dict, error: type[Exception], match: str) -> None:
+        with pytest.raises(error, match=match):
+            tm.plan_exposures(**kwargs)

@@ -1,0 +1,114 @@
+"""The conventional multi-exposure HDR merge of clipped frames: the baseline the paper compares against (Sec. 5.2)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from torch_modulo._checks import check_bits, check_choice, check_modulus
+from torch_modulo.multishot.stack import sort_stack, stack_exposures
+from torch_modulo.noise import NoiseModel, as_noise_model
+
+__all__ = ["IntensityMerge", "merge_intensity"]
+
+WEIGHTS = ("binary", "hat")
+
+
+def merge_intensity(
+    frames: torch.Tensor,
+    exposures: Sequence[float] | torch.Tensor,
+    bits: int = 8,
+    *,
+    weights: str = "binary",
+    noise: NoiseModel | str | None = None,
+) -> torch.Tensor:
+    """Conventional multi-exposure HDR merge of clipped frames: the baseline the paper compares against.
+
+    Each frame gives the estimate ``I / tau`` (the same convention as Eq. 7). ``weights="binary"`` (the paper's
+    Sec. 5.2 description) averages the estimates of frames that are neither under-exposed (``I = 0``) nor saturated
+    (``I = 2**bits - 1``); ``weights="hat"`` uses Debevec and Malik's (1997) triangle ``min(I, 2**bits - 1 - I)``.
+    A pixel with no usable frame takes the shortest exposure's estimate if it is saturated there (a lower bound)
+    and otherwise the longest exposure's (0 for a pixel that is black everywhere).
+
+    With the sensor's ``noise`` model the merge is the noise-optimal one instead (the fair baseline under noise):
+    every unsaturated frame's unbiased estimate ``(I + 1/2) / tau`` is weighted by ``tau^2 / Var(I)``, with the
+    variance from the noise model at one common radiance (that of the longest unsaturated frame), less the dark
+    counts; ``weights`` is then ignored.
+
+    Args:
+        frames: intensity images (B, M, C, H, W) or (M, C, H, W), integers in ``[0, 2**bits)``.
+        exposures: (M,) or (B, M), any order.
+        bits: the sensor's bit depth.
+        weights: ``"binary"`` or ``"hat"``.
+        noise: the sensor's :class:`~torch_modulo.sensors.NoiseModel` (or a preset name) for the variance-weighted
+            merge, or None.
+
+    Returns:
+        Radiance (B, C, H, W) or (C, H, W), same dtype and device as ``frames``.
+
+    Example:
+        >>> frames = torch.tensor([[[[10.0]]], [[[160.0]]], [[[255.0]]]])   # (M, C, H, W), 8 bits
+        >>> merge_intensity(frames, [1.0, 16.0, 256.0], bits=8)
+        tensor([[[10.]]])
+    """
+    check_choice(weights, "weights", WEIGHTS)
+    stack, tau, unbatched = stack_exposures(frames, exposures, "frames")
+    bits = check_bits(bits, frames.dtype)
+    check_modulus(stack, bits, "frames")
+    stack, tau = sort_stack(stack, tau)
+    top = float(2**bits - 1)
+    noise = as_noise_model(noise)
+    if noise is not None:
+        out = _merge_noisy(stack, tau, top, noise).to(frames.dtype)
+        return out[0] if unbatched else out
+    tau_b = tau.to(frames.dtype).view(*tau.shape, 1, 1, 1)
+    estimates = stack / tau_b
+    if weights == "binary":
+        w = ((stack > 0) & (stack < top)).to(frames.dtype)
+    else:
+        w = torch.minimum(stack, top - stack)
+    total = w.sum(dim=1)
+    merged = (w * estimates).sum(dim=1) / total.clamp_min(torch.finfo(frames.dtype).tiny)
+    fallback = torch.where(stack[:, 0] >= top, estimates[:, 0], estimates[:, -1])
+    out = torch.where(total > 0, merged, fallback)
+    return out[0] if unbatched else out
+
+
+def _merge_noisy(stack: torch.Tensor, tau: torch.Tensor, top: float, noise: NoiseModel) -> torch.Tensor:
+    """Inverse-variance merge of the unsaturated frames of a sorted stack (B, M, C, H, W); float64 out."""
+    x = stack.double()
+    t = tau.double().view(*tau.shape, 1, 1, 1)
+    usable = x < top
+    estimates = (x + 0.5) / t
+    # The common radiance for the variances: the longest unsaturated frame's (the shortest's if all saturate).
+    last = (usable * torch.arange(1, x.shape[1] + 1, device=x.device).view(1, -1, 1, 1, 1)).amax(dim=1, keepdim=True)
+    first = torch.gather(estimates, 1, (last - 1).clamp_min(0))
+    weight = torch.where(usable, t**2 / noise.count_variance(t * first), 0.0)
+    total = weight.sum(dim=1)
+    merged = (weight * estimates).sum(dim=1) / total.clamp_min(torch.finfo(torch.float64).tiny)
+    merged = torch.where(total > 0, merged, estimates[:, 0])  # saturated everywhere: a lower bound
+    return (merged - noise.dark_counts).clamp_min(0.0)
+
+
+class IntensityMerge(nn.Module):
+    """Module twin of :func:`merge_intensity` (the conventional-sensor baseline).
+
+    Example:
+        >>> IntensityMerge(bits=4)(torch.tensor([[[[15.0]]], [[[15.0]]]]), [1.0, 4.0])
+        tensor([[[15.]]])
+    """
+
+    def __init__(self, bits: int = 8, weights: str = "binary", *, noise: NoiseModel | str | None = None) -> None:
+        super().__init__()
+        check_choice(weights, "weights", WEIGHTS)
+        self.bits = check_bits(bits, torch.float64)
+        self.weights = weights
+        self.noise = as_noise_model(noise)
+
+    def forward(self, frames: torch.Tensor, exposures: Sequence[float] | torch.Tensor) -> torch.Tensor:
+        return merge_intensity(frames, exposures, self.bits, weights=self.weights, noise=self.noise)
+
+    def extra_repr(self) -> str:
+        return f"bits={self.bits}, weights={self.weights!r}, noise={self.noise}"

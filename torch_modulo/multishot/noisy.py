@@ -1,0 +1,82 @@
+r"""Noise-aware rollover counting: decode each frame only as far as the noise model says its count is determined.
+
+Under noise the robust rule's prediction of the next count, ``r (I^(i-1) + 1/2)``, is off by the ratio ``r`` times
+the previous frame's noise plus the new frame's own noise; once that spread nears half a period the rounding picks a
+wrong rollover count, and every later frame inherits the error. This decoder walks each pixel's frames from the
+shortest and keeps, from the :class:`~torch_modulo.noise.NoiseModel`, the variance of its running radiance
+estimate. Frame ``i`` is decoded only while the predicted count's standard deviation,
+
+.. math:: s_i = \sqrt{\tau_i^2 \operatorname{Var}(\hat E) + \operatorname{Var}(I^{(i)})},
+
+stays within ``2^N / (2 z)`` (``z`` = ``sigmas``: the rounding is then wrong with probability about that of a
+``z``-sigma Gaussian tail); from the first frame where it does not, the pixel's remaining frames are ignored (their
+noise only grows with the exposure). The radiance is the inverse-variance weighted mean of the decoded frames'
+estimates ``(I^{(i)} + 1/2) / \tau_i``, with every frame's variance evaluated at one common radiance (so a frame's
+own noise does not set its weight), less the dark counts.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from torch_modulo.noise import NoiseModel
+
+__all__ = ["decode_noisy"]
+
+
+def decode_noisy(
+    frames: torch.Tensor,
+    tau: torch.Tensor,
+    bits: int,
+    noise: NoiseModel,
+    sigmas: float = 3.0,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Decode a sorted exposure stack under ``noise``.
+
+    Args:
+        frames: (B, M, n) moduli, exposures sorted ascending, integers in ``[0, 2**bits)``.
+        tau: (B, M) exposures, ascending.
+        bits: the bit depth ``N``.
+        noise: the sensor's noise model.
+        sigmas: ``z``, the gate on the predicted count's standard deviation in units of ``2**bits / 2``.
+
+    Returns:
+        ``(radiance, variance, used)``, each (B, n): the radiance estimate (counts per unit exposure, >= 0), its
+        variance from the noise model, and the number of frames decoded per pixel (the shortest is always used).
+        Radiance and variance are float64 (float32 on devices without float64).
+    """
+    work = torch.float64 if frames.device.type in ("cpu", "cuda") else torch.float32
+    x = frames.to(work)
+    t = tau.to(device=x.device, dtype=work).unsqueeze(-1)  # (B, M, 1)
+    m = x.shape[1]
+    period = float(2**bits)
+    gate = (period / (2.0 * sigmas)) ** 2
+
+    counts = torch.full_like(x, float("nan"))  # decoded counts; NaN where a frame is not used
+    counts[:, 0] = x[:, 0]  # the shortest exposure does not roll over
+    estimate = (x[:, 0] + 0.5) / t[:, 0]
+    weight = t[:, 0] ** 2 / noise.count_variance(x[:, 0] + 0.5)
+    total = weight.clone()
+    weighted = weight * estimate
+    active = torch.ones_like(estimate, dtype=torch.bool)
+    for i in range(1, m):
+        predicted = t[:, i] * estimate - 0.5
+        own = noise.count_variance(predicted + 0.5)
+        spread = t[:, i] ** 2 / total + own
+        active &= spread <= gate
+        k = torch.round((predicted - x[:, i]) / period).clamp_min_(0.0)
+        decoded = x[:, i] + k * period
+        counts[:, i] = torch.where(active, decoded, counts[:, i])
+        weight = torch.where(active, t[:, i] ** 2 / own, 0.0)  # the prediction's variance: independent of frame i
+        total += weight
+        weighted += weight * torch.where(active, (decoded + 0.5) / t[:, i], 0.0)
+        estimate = weighted / total
+
+    # Re-weight with every decoded frame's variance at the final estimate.
+    used = torch.isfinite(counts)
+    own = noise.count_variance(t * estimate.unsqueeze(1))
+    weight = torch.where(used, t**2 / own, 0.0)
+    total = weight.sum(dim=1)
+    radiance = (weight * torch.where(used, (counts + 0.5) / t, 0.0)).sum(dim=1) / total
+    radiance = (radiance - noise.dark_counts).clamp_min_(0.0)
+    return radiance, 1.0 / total, used.sum(dim=1)

@@ -1,0 +1,205 @@
+r"""Exposure planning for multi-shot capture, noise-free and under a noise model, and the safety check of a plan.
+
+Convention: a scene of ``stops`` stops spans radiances ``E_min .. E_max = 2**stops E_min``, where ``E_min`` reads one
+count at the longest exposure and ``E_max`` does not roll over at the shortest (``base``).
+
+Noise-free (``noise=None``), any ratio up to ``2**bits - 1`` decodes exactly, so the plan spreads the fewest such
+ratios evenly. Under noise the ratio a frame may take depends on the counts and noise of the frames before it (see
+:mod:`torch_modulo.multishot.noisy`): a pixel is decoded in the next frame only while ``r^2 Var(E^) tau^2 +
+Var(I)`` stays under the gate. The planner walks a grid of radiances through the expected decoding and makes each
+ratio as large as the pixels that still need the next frame allow. A pixel needs it until its variance is within
+``tolerance**2`` of what the longest exposure alone would give it (its oracle), unless it is already at the
+physical limit: a pixel whose next frame is undecodable even at ratio ``min_ratio`` is done.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torch_modulo._checks import check_bits, check_real
+from torch_modulo.noise import NoiseModel, as_noise_model
+
+__all__ = ["plan_exposures", "safe_ratio"]
+
+_MAX_FRAMES = 256
+
+
+def _gate(bits: int, sigmas: float) -> float:
+    return (2**bits / (2.0 * sigmas)) ** 2
+
+
+def _brightest_unwrapped(bits: int, noise: NoiseModel, sigmas: float) -> float:
+    """The largest expected count ``c`` whose noisy reading stays below ``2**bits`` by ``sigmas`` deviations."""
+    top = 2**bits - 1.0
+    lo, hi = 0.0, top
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if mid + sigmas * math.sqrt(noise.count_variance(mid)) <= top:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _largest_ratio(
+    tau: torch.Tensor, radiance: torch.Tensor, variance: torch.Tensor, noise: NoiseModel, gate: float
+) -> torch.Tensor:
+    """Per radiance, the largest ratio ``r`` whose next frame passes the gate: ``(r tau)^2 Var + Var(I(r tau E))``."""
+    a = tau**2 * variance
+    b = tau * radiance / noise.electrons_per_count if noise.shot_noise else torch.zeros_like(radiance)
+    c = float(noise.count_variance(0.0)) - gate
+    return (-b + torch.sqrt(b * b - 4 * a * c)) / (2 * a)
+
+
+def _noisy_plan(
+    stops: float,
+    bits: int,
+    base: float,
+    limit: float,
+    noise: NoiseModel,
+    sigmas: float,
+    tolerance: float,
+    min_ratio: float,
+) -> list[float]:
+    gate = _gate(bits, sigmas)
+    if noise.count_variance(0.0) >= gate:
+        raise ValueError(
+            f"noise {noise} leaves no margin at bits={bits}: its read noise alone exceeds the decoding gate "
+            f"(2^bits / (2 sigmas))^2 = {gate:g}; use more bits or fewer sigmas"
+        )
+    first = _brightest_unwrapped(bits, noise, sigmas)
+    longest = base * 2.0**stops / first  # E_min = 1 / longest reads one count there
+    if longest <= base:
+        return [float(base)]
+    # Radiances E_min .. E_max on a log grid; E_max reads `first` counts at `base`.
+    radiance = 2.0 ** torch.linspace(0.0, float(stops), max(256, int(32 * stops)), dtype=torch.float64) / longest
+    radiance = radiance + noise.dark_counts
+    oracle = noise.count_variance(longest * radiance) / longest**2
+    tau = float(base)
+    total = tau**2 / noise.count_variance(tau * radiance)
+    active = torch.ones_like(radiance, dtype=torch.bool)
+    plan = [tau]
+    while tau < longest * (1 - 1e-12):
+        if len(plan) >= _MAX_FRAMES:
+            raise ValueError(f"more than {_MAX_FRAMES} exposures would be needed; lower tolerance or the stops")
+        ratios = _largest_ratio(torch.tensor(tau, dtype=torch.float64), radiance, 1.0 / total, noise, gate)
+        needy = active & (1.0 / total > tolerance**2 * oracle) & (ratios >= min_ratio)
+        r = float(ratios[needy].min()) if bool(needy.any()) else limit
+        r = min(max(r, min_ratio), limit, longest / tau)
+        tau = longest if r >= longest / tau * (1 - 1e-12) else tau * r
+        active &= r <= ratios
+        total = total + torch.where(active, tau**2 / noise.count_variance(tau * radiance), 0.0)
+        plan.append(float(tau))
+    return plan
+
+
+def plan_exposures(
+    stops: float,
+    bits: int = 8,
+    *,
+    base: float = 1.0,
+    max_ratio: float | None = None,
+    noise: NoiseModel | str | None = None,
+    sigmas: float = 3.0,
+    tolerance: float = 1.2,
+    min_ratio: float = 1.5,
+) -> list[float]:
+    """The fewest exposures whose modulo captures decode a scene of ``stops`` stops reliably.
+
+    A scene spans ``E_max / E_min = 2**stops``, where ``E_min`` reads one count at the longest exposure and
+    ``E_max`` must not roll over at the shortest exposure ``base``. Without noise, neighbouring ratios of up to
+    ``max_ratio`` are spread evenly. With a ``noise`` model the shortest exposure keeps ``E_max`` ``sigmas``
+    deviations below the rollover, and each ratio is as large as the pixels that still need the next frame allow
+    (see the module docstring), so that :func:`~torch_modulo.unwrap_multi` with the same ``noise`` decodes every
+    radiance to within ``tolerance`` of what its longest frame alone would give, or to its physical limit.
+
+    Args:
+        stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
+        bits: the sensor's bit depth.
+        base: the shortest exposure.
+        max_ratio: the largest neighbouring ratio; default ``2**bits - 1`` (2 for a 1-bit counter).
+        noise: the sensor's :class:`~torch_modulo.noise.NoiseModel` (or a preset name), or None for a noise-free
+            sensor.
+        sigmas: the decoding gate in standard deviations (the same as :func:`~torch_modulo.unwrap_multi`'s).
+        tolerance: with noise, how far above its oracle standard deviation a pixel may end (>= 1).
+        min_ratio: with noise, the smallest ratio worth a frame (> 1).
+
+    Returns:
+        Exposures in ascending order, starting at ``base``.
+
+    Raises:
+        TypeError: an argument of the wrong type.
+        ValueError: a value out of range, or a noise model that no exposure plan can decode.
+
+    Example:
+        >>> plan_exposures(24, bits=8, max_ratio=256)     # the paper: three 8-bit captures cover 24 stops
+        [1.0, 256.0, 65536.0]
+        >>> len(plan_exposures(24, bits=8))               # with ratios <= 255 it takes four
+        4
+        >>> plan = plan_exposures(16, bits=8, noise="q16")  # 16 e- per count, 16 e- read noise
+        >>> len(plan) > 3, max(b / a for a, b in zip(plan, plan[1:])) < 32
+        (True, True)
+    """
+    stops = check_real(stops, "stops", 0.0)
+    bits = check_bits(bits, torch.float64)
+    base = check_real(base, "base", positive=True)
+    if max_ratio is None:
+        limit = 2.0**bits - 1 if bits > 1 else 2.0  # a 1-bit counter decodes integer ratios up to 2 exactly
+    else:
+        limit = check_real(max_ratio, "max_ratio")
+        if not 1 < limit <= 2**bits:
+            raise ValueError(f"max_ratio must be in (1, 2^bits = {2**bits}]; got {max_ratio!r}")
+    if stops - bits + math.log2(base) >= 1023:
+        raise ValueError(
+            f"stops={stops:g} from base={base:g} needs exposures beyond float64's range (about 2^1023); "
+            "express exposures in a larger unit (a smaller base) or plan fewer stops"
+        )
+    if noise is not None:
+        noise = as_noise_model(noise)
+        sigmas = check_real(sigmas, "sigmas", positive=True)
+        tolerance = check_real(tolerance, "tolerance", 1.0)
+        min_ratio = check_real(min_ratio, "min_ratio")
+        if not 1 < min_ratio <= limit:
+            raise ValueError(f"min_ratio must be in (1, max_ratio = {limit:g}]; got {min_ratio}")
+        return _noisy_plan(stops, bits, base, limit, noise, sigmas, tolerance, min_ratio)
+    span_log2 = stops - bits
+    if span_log2 <= 0:
+        return [float(base)]
+    count = 1 + math.ceil(span_log2 / math.log2(limit) - 1e-12)
+    step = 2.0 ** (span_log2 / (count - 1))
+    return [float(base * step**i) for i in range(count)]
+
+
+def safe_ratio(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> tuple[float, float]:
+    """The largest neighbouring ratio that keeps every gross-error-prone pixel decodable under ``noise``.
+
+    A pixel that stops decoding at ``c`` counts keeps a relative error of about ``sqrt(Var(c)) / c``; below the
+    count ``c_min`` where ``sigmas`` such deviations reach half the value, that risks errors above 50%. Such a pixel
+    must reach the next frame: ``r^2 Var(c_min) + Var(r c_min)`` within the gate.
+
+    Returns:
+        ``(ratio, c_min)``.
+
+    Example:
+        >>> ratio, c_min = safe_ratio(8, NoiseModel())
+        >>> 5 < ratio < 8, 30 < c_min < 45
+        (True, True)
+    """
+    lo, hi = 0.0, 2.0**bits
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if sigmas * math.sqrt(noise.count_variance(mid)) <= 0.5 * mid:
+            hi = mid
+        else:
+            lo = mid
+    c_min = hi
+    ratio = _largest_ratio(
+        torch.tensor(1.0, dtype=torch.float64),
+        torch.tensor(c_min + noise.dark_counts, dtype=torch.float64),
+        torch.tensor(noise.count_variance(c_min), dtype=torch.float64),
+        noise,
+        _gate(bits, sigmas),
+    )
+    return float(ratio), c_min
