@@ -1,4 +1,4 @@
-"""End-to-end tests of the ``torch-modulo`` folder commands (torch_modulo/cli.py) on small generated scenes."""
+"""End-to-end tests of the ``torch-modulo`` command line (torch_modulo/cli.py) on small generated scenes."""
 
 from __future__ import annotations
 
@@ -347,7 +347,7 @@ class TestFolderPromises:
         assert merged["parts"] == [0, 1] and _names(merged["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
 
     def test_ray_engine(self, scenes: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-        from test_batch import _fake_ray
+        from batch.fakes import fake_ray as _fake_ray
 
         calls: list[str] = []
         monkeypatch.setitem(sys.modules, "ray", _fake_ray(calls))
@@ -482,6 +482,71 @@ class TestFolderPromises:
         assert merged["parts"] == [0, 1] and _names(merged["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
 
 
+# ----------------------------------------------------------------------------------------------- reliability
+
+
+def _bad_values_scene(path: Path) -> Path:
+    """A scene with one NaN, one +Inf and one negative value (as damaged and lossy files have)."""
+    image = _scene(8)
+    image[0, 1, 2] = float("nan")
+    image[1, 3, 4] = float("inf")
+    image[2, 5, 6] = -0.5
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_image(path, image)
+    return path
+
+
+class TestReliability:
+    def test_symlink_loop_in_the_input_tonemaps_each_scene_once(self, scenes: Path, tmp_path: Path) -> None:
+        os.symlink(scenes, scenes / "sub" / "loop")  # the input folder inside itself
+        os.symlink(scenes / "a.exr", scenes / "also_a.exr")  # a second name for one file
+        out = tmp_path / "png"
+        assert _cli("tonemap", scenes, out, "--workers", 1) == 0
+        assert _names(_report(out, "tonemap")["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
+        assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.png")) == ["a.png", "b.png", "sub/c.png"]
+
+    def test_nonfinite_radiance_is_read_the_same_by_every_command(self, tmp_path: Path) -> None:
+        from torch_modulo.data import HDRFolder
+        from torch_modulo.pipeline import load_radiance
+
+        source = _bad_values_scene(tmp_path / "in" / "bad.exr")
+        expected = load_radiance(source)
+        assert bool(torch.isfinite(expected).all()) and float(expected.min()) >= 0
+        assert torch.equal(HDRFolder(tmp_path / "in", channels=None)[0], expected)  # the Dataset reads the same
+        assert _cli("tonemap", tmp_path / "in", tmp_path / "png") == 0
+        assert torch.equal(read_image(tmp_path / "png" / "bad.png"), torch.round(tonemap_histogram(expected) * 255))
+        done = _report(tmp_path / "png", "tonemap")["done"][0]
+        assert done["nonfinite_replaced"] == {"nan": 1, "posinf": 1, "neginf": 0}
+        assert done["warnings"][0].startswith("replaced 2 NaN or infinite values (1 NaN, 1 +Inf, 0 -Inf)")
+        assert _cli("simulate", tmp_path / "in", tmp_path / "stacks") == 0
+        truth = read_image(tmp_path / "stacks" / "bad" / "radiance.exr", dtype=torch.float64)
+        torch.testing.assert_close(truth, (expected.double() * (255 / float(expected.max()))).float().double())
+        assert _report(tmp_path / "stacks", "simulate")["done"][0]["negatives_clamped"] == 1
+
+    def test_nonfinite_raise_refuses_the_file_with_its_counts(self, tmp_path: Path) -> None:
+        source = _bad_values_scene(tmp_path / "in" / "bad.exr")
+        for command in ("tonemap", "simulate"):
+            out = tmp_path / command
+            assert _cli(command, tmp_path / "in", out, "--nonfinite", "raise") == 1
+            error = _report(out, command)["failed"][0]["error"]
+            assert error.startswith(f"ValueError: {source} holds 2 NaN or infinite values (1 NaN, 1 +Inf, 0 -Inf)")
+
+    def test_solver_is_a_deprecated_alias_of_method(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        (tmp_path / "in").mkdir()
+        counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
+        write_image(tmp_path / "in" / "ramp.png", torch.remainder(counts, 256), {"bits": 8})
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--method", "fast") == 0
+        assert "--solver is deprecated" not in capsys.readouterr().err
+        assert read_metadata(tmp_path / "out" / "ramp.exr")["solver"] == "fast"
+        # the old spelling is the same option: the rerun skips the image, and says to use --method
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--solver", "fast") == 0
+        assert "torch-modulo unwrap: warning: --solver is deprecated; use --method" in capsys.readouterr().err
+        assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["ramp.png"]
+        args = build_parser().parse_args(["demo", "--solver", "paper"])
+        assert args.method == "paper"
+        assert "torch-modulo demo: warning: --solver is deprecated; use --method" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------------------------------- usage and help
 
 
@@ -511,6 +576,10 @@ BAD_OPTIONS = [
     (["unwrap", "{in}", "{out}", "--confidence"], "--confidence applies to --single only"),
     (["unwrap", "{in}", "{out}", "--single", "--solver", "magic"], "--solver must be one of"),
     (["unwrap", "{in}"], "the following arguments are required: OUT"),
+    (["unwrap", "{in}", "{out}", "--method", "fast"], "--method fast is a single-shot method: use it with --single"),
+    (["unwrap", "{in}", "{out}", "--single", "--method", "robust"], "--method must be one of"),
+    (["tonemap", "{in}", "{out}", "--nonfinite", "zero"], "invalid choice: 'zero'"),
+    (["simulate", "{in}", "{out}", "--merge-timeout", "0"], "expected a finite number > 0; got '0'"),
 ]
 
 
@@ -569,6 +638,14 @@ class TestUsage:
             assert action.help, f"{command}: {action.dest} has no help"
             for option in action.option_strings:
                 assert option in text
+
+    def test_version(self, capsys: pytest.CaptureFixture[str]) -> None:
+        import torch_modulo
+
+        with pytest.raises(SystemExit) as exit_info:
+            main(["--version"])
+        assert exit_info.value.code == 0
+        assert capsys.readouterr().out.strip() == f"torch-modulo {torch_modulo.__version__}"
 
     def test_demo_options_are_unchanged(self) -> None:
         args = build_parser().parse_args(["demo"])

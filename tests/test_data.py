@@ -13,6 +13,7 @@ from torch.utils.data import DataLoader
 from torch_modulo import capture_modulo
 from torch_modulo.data import HDRFolder, RandomModuloCapture
 from torch_modulo.io import write_image
+from torch_modulo.pipeline import load_radiance
 from torch_modulo.sensors import NoiseModel
 
 
@@ -46,6 +47,19 @@ class TestHDRFolder:
         write_image(tmp_path / "x.exr", image)
         item = HDRFolder(tmp_path, channels=None)[0]
         assert item.tolist() == [[[1.0, 0.0], [0.0, 5.0]], [[5.0, 3.0], [0.5, 0.25]]]
+
+    def test_nonfinite_policy_is_the_command_lines(self, tmp_path: Path) -> None:
+        image = torch.ones(3, 4, 4)
+        image[0, 0, 0], image[1, 1, 1] = float("nan"), float("inf")
+        write_image(tmp_path / "x.exr", image)
+        assert torch.equal(HDRFolder(tmp_path)[0], load_radiance(tmp_path / "x.exr", channels=3))
+        with pytest.raises(ValueError, match=r"x\.exr holds 2 NaN or infinite values \(1 NaN, 1 \+Inf, 0 -Inf\)"):
+            HDRFolder(tmp_path, nonfinite="raise")[0]
+        with pytest.raises(ValueError, match="nonfinite must be one of 'raise', 'replace'; got 'zero'"):
+            HDRFolder(tmp_path, nonfinite="zero")
+        write_image(tmp_path / "x.exr", torch.full((3, 4, 4), float("nan")))
+        with pytest.raises(ValueError, match=r"x\.exr holds no finite value"):  # nothing to replace them with
+            HDRFolder(tmp_path)[0]
 
     def test_channels(self, tmp_path: Path) -> None:
         grey = torch.rand(1, 4, 4) * 10

@@ -52,3 +52,15 @@ def test_cli_demo_with_the_papers_graph_cut(tmp_path: Path) -> None:
 def test_cli_demo_reports_a_missing_scene(tmp_path: Path, capsys) -> None:
     assert main(["demo", "--out", str(tmp_path / "out"), "--scene", str(tmp_path / "missing.exr")]) == 1
     assert "missing.exr" in capsys.readouterr().err
+
+
+def test_demo_reads_grey_and_damaged_scenes_like_the_command_line(tmp_path: Path) -> None:
+    y, x = torch.meshgrid(torch.linspace(-1, 1, 12), torch.linspace(-1, 1, 20), indexing="ij")
+    grey = (0.01 + (x + 1) / 2 + 0.2 * torch.exp(-(x**2 + y**2) * 4))[None].clone()
+    grey[0, 0, 0], grey[0, 1, 1] = float("nan"), float("inf")
+    io.write_image(tmp_path / "grey.exr", grey)
+    lines: list[str] = []
+    summary = run_demo(tmp_path / "out", tmp_path / "grey.exr", workers=1, log=lines.append)
+    assert any("replaced 2 NaN or infinite values" in line for line in lines)
+    assert io.read_image(tmp_path / "out" / "multi_shot.exr").shape == (3, 12, 20)  # grey read as RGB
+    assert summary["multi_shot"]["exact_k"] == 1.0

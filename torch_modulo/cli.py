@@ -1,4 +1,4 @@
-"""The ``torch-modulo`` command line.
+"""The ``torch-modulo`` command line: parse, call the library, report.
 
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
     torch-modulo simulate IN OUT [--bits 8] [--exposures 1,256,65536] [--noise ...] [--seed N]
@@ -6,46 +6,32 @@
     torch-modulo unwrap IN OUT [--single]           frame stacks (or single modulus images) -> radiance EXRs
     torch-modulo tonemap IN OUT [--op histogram]    radiance files -> PNGs
 
-The folder commands share one engine (:mod:`torch_modulo.batch`): a progress bar, ``--workers N`` processes,
-inputs never written, atomic outputs, resume by rerunning, one bad file reported and skipped, a JSON report, a
-non-zero exit code when anything failed, and the same commands under ``torchrun`` (each rank takes its shard) or
-on a Ray cluster (``--engine ray``). Run ``torch-modulo COMMAND --help`` for every option with an example.
+The per-file work lives in :mod:`torch_modulo.pipeline` and the folder commands share one engine
+(:mod:`torch_modulo.batch`): a progress bar, ``--workers N`` processes, inputs never written, atomic outputs,
+resume by rerunning, one bad file reported and skipped, a JSON report, a non-zero exit code when anything failed,
+and the same commands under ``torchrun`` (the ranks share the files) or on a Ray cluster (``--engine ray``). Run
+``torch-modulo COMMAND --help`` for every option with an example.
+
+(Most of this file's length is the help text of the options, kept beside the options it describes.)
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
-import importlib
-import inspect
 import math
 import sys
 import textwrap
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from torch_modulo.pipeline import NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
+
+# The jobs live in torch_modulo.pipeline; they stay importable from here.
 __all__ = ["build_parser", "main", "simulate_job", "tonemap_job", "unwrap_job"]
 
-#: Radiance files ``simulate`` and ``tonemap`` read.
-RADIANCE_EXTENSIONS = (".exr", ".hdr", ".pfm", ".tif", ".tiff")
-#: Modulus images ``unwrap --single`` reads.
-MODULUS_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm")
-#: Tone-mapping operators ``tonemap --op`` offers (``torch_modulo.tonemap.tonemap_<op>``).
-TONEMAP_OPS = ("histogram", "reinhard", "gamma", "log", "clahe")
-_TONEMAP_MODULES = {
-    "histogram": "HistogramToneMap",
-    "reinhard": "ReinhardToneMap",
-    "gamma": "GammaToneMap",
-    "log": "LogToneMap",
-    "clahe": "ClaheToneMap",
-}
-#: Modules each command's workers import up front.
-_PRELOAD = {
-    "simulate": ("torch_modulo.io", "torch_modulo.sensors"),
-    "unwrap": ("torch_modulo.io", "torch_modulo.sensors", "torch_modulo.multishot"),
-    "tonemap": ("torch_modulo.io", "torch_modulo.tonemap"),
-}
+#: Multi-shot rules of ``unwrap --method`` (without ``--single``).
+_MULTI_RULES = ("robust", "paper")
 _NOISE_KEYS = {
     "q": "electrons_per_count",
     "electrons_per_count": "electrons_per_count",
@@ -192,9 +178,11 @@ def _param(text: str) -> tuple[str, Any]:
     return name.strip(), _param_value(value.strip())
 
 
-def _tuples(params: Mapping[str, Any]) -> dict[str, Any]:
-    """JSON keeps tuples as lists; the tone-mapping functions want tuples (``grid_size=(8, 8)``)."""
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+# ------------------------------------------------------------------------------------------------ parser
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the examples' line breaks (descriptions are wrapped by :func:`_wrap`)."""
 
 
 # ------------------------------------------------------------------------------------------------ parser
@@ -208,19 +196,37 @@ def _wrap(text: str) -> str:
     return textwrap.fill(text, width=100)
 
 
-_FOLDER_EPILOG = """
-Every folder command: inputs are found recursively (hidden files skipped) and sorted; outputs mirror the
-subfolders; IN is never written; outputs are written atomically; a rerun skips what is complete (same options,
-unchanged input) so a crashed or interrupted run resumes where it stopped; a bad file is reported and skipped; the
-report lists done/skipped/failed with reasons; the exit code is 0 when nothing failed, 1 when something failed,
-130 after Ctrl-C, 2 for bad options.
+class _MethodOption(argparse.Action):
+    """``--method``, also reachable as ``--solver``, its deprecated former name (using it prints a warning)."""
 
-Many machines: under torchrun every rank takes files[rank::world_size] and rank 0 merges the reports:
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None
+    ) -> None:
+        if option_string == "--solver":
+            print(f"{parser.prog}: warning: --solver is deprecated; use --method", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+        namespace.method_option = option_string
+
+
+_FOLDER_EPILOG = """
+Every folder command: inputs are found recursively (hidden files skipped, each file once even through symbolic
+links) and sorted; outputs mirror the subfolders; IN is never written; outputs are written atomically; a rerun
+skips what is complete (same options, unchanged input) so a crashed or interrupted run resumes where it stopped;
+a bad file is reported and skipped; the report lists done/skipped/failed with reasons; the exit code is 0 when
+nothing failed, 1 when something failed, 130 after Ctrl-C, 2 for bad options.
+
+Many machines: under torchrun the ranks share the files (balanced by their number of values) and rank 0 merges
+the ranks' reports:
   torchrun --nnodes 2 --nproc_per_node 1 --rdzv_backend c10d --rdzv_endpoint HOST:29500 \\
       -m torch_modulo.cli {command} IN OUT
 On a Ray cluster (pip install 'torch_modulo[ray]'):
   torch-modulo {command} IN OUT --engine ray --ray-address auto
 """
+
+_NONFINITE_HELP = (
+    "what to do with NaN and infinite values: replace (default: NaN and -Inf by 0, +Inf by the image's largest "
+    "finite value; the report counts them) or raise (report the file as failed); negative values are clamped to 0"
+)
 
 
 def _add_folder_options(sub: argparse.ArgumentParser, what_in: str, what_out: str) -> None:
@@ -257,20 +263,23 @@ def _add_folder_options(sub: argparse.ArgumentParser, what_in: str, what_out: st
         default=None,
         help="show a progress bar (default: only when stderr is a terminal)",
     )
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="torch-modulo",
-        description="Unbounded HDR photography with a modulo camera (Zhao et al., ICCP 2015).",
+    group.add_argument(
+        "--merge-timeout",
+        type=_positive_float,
+        default=None,
+        metavar="S",
+        help="under torchrun: seconds rank 0 waits for the other ranks' reports after its own work, then reports "
+        "the missing ones and exits 1 (default: as long as they run)",
     )
-    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+
+def _add_demo(commands: Any) -> None:
     demo = commands.add_parser(
         "demo",
         help="run the whole pipeline on one scene and write the results",
         description=(
             "Simulate 8-bit modulo and intensity captures of an HDR scene (default: the embedded CC0 scene), "
-            "unwrap them from one shot (unwrap_single, see --solver) and from three shots (rollover counting), "
+            "unwrap them from one shot (unwrap_single, see --method) and from three shots (rollover counting), "
             "tone-map, and write EXRs, PNGs, comparison.png and summary.json."
         ),
         epilog="example: torch-modulo demo --out demo_out",
@@ -285,12 +294,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=_positive_int, default=None, help="processes for the single shot (default: one per core)"
     )
     demo.add_argument(
+        "--method",
         "--solver",
+        action=_MethodOption,
+        dest="method",
         default="guided",
         choices=("guided", "fast", "paper"),
-        help="single-shot method of unwrap_single (default: %(default)s; fast and paper: the paper's graph cut)",
+        help="single-shot method of unwrap_single (default: %(default)s; fast and paper: the paper's graph cut; "
+        "--solver is its deprecated former name)",
     )
 
+
+def _add_simulate(commands: Any) -> None:
     simulate = commands.add_parser(
         "simulate",
         help="HDR files -> simulated modulo frame stacks (training data)",
@@ -351,7 +366,10 @@ def build_parser() -> argparse.ArgumentParser:
         default=True,
         help="also write radiance.exr, the scaled ground truth (default: on)",
     )
+    simulate.add_argument("--nonfinite", choices=NONFINITE, default="replace", help=_NONFINITE_HELP)
 
+
+def _add_unwrap(commands: Any) -> None:
     unwrap = commands.add_parser(
         "unwrap",
         help="frame stacks (or single modulus images) -> radiance EXRs",
@@ -361,12 +379,13 @@ def build_parser() -> argparse.ArgumentParser:
             "with a frames.json manifest as `torch-modulo simulate` or torch_modulo.sensors.write_frames write "
             "it, becomes OUT/<stack>.exr by rollover counting (unwrap_multi; stacks of a conventional sensor, "
             "kind 'intensity', are merged with merge_intensity instead). With --single (paper Eqs. 3-5): every "
-            "modulus image in IN (.exr .png .tif .pfm) is unwrapped alone (unwrap_single, see --solver) and "
+            "modulus image in IN (.exr .png .tif .pfm) is unwrapped alone (unwrap_single, see --method) and "
             "becomes OUT/<image>.exr, the restored counts divided by the frame's exposure. Output values are "
             "radiance in counts per unit exposure; the metadata records the source, bit depth and exposures."
         ),
         epilog="examples:\n  torch-modulo unwrap stacks/ radiance/\n"
-        "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8\n" + _FOLDER_EPILOG.format(command="unwrap"),
+        "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
+        + _FOLDER_EPILOG.format(command="unwrap"),
     )
     _add_folder_options(unwrap, "folder of frame stacks, or of modulus images with --single", "folder for the EXRs")
     unwrap.add_argument(
@@ -391,19 +410,20 @@ def build_parser() -> argparse.ArgumentParser:
         "is determined by the image; 0: it was guessed, take a second exposure there)",
     )
     unwrap.add_argument(
+        "--method",
         "--solver",
+        action=_MethodOption,
+        dest="method",
         default=None,
         metavar="METHOD",
-        help="with --single: the method of unwrap_single: guided (path following, channels together; the "
-        "default), fast (the paper's graph cut on a cheaper schedule) or paper (Eqs. 3-5 from k = 0, slow)",
-    )
-    unwrap.add_argument(
-        "--method",
-        choices=("robust", "paper"),
-        default="robust",
-        help="multi-shot rule: robust (default; exact for every ratio up to 2^bits) or paper (Eq. 6 as printed)",
+        help="multi shot: the rule, robust (default; exact for every ratio up to 2^bits) or paper (Eq. 6 as "
+        "printed); with --single: the method of unwrap_single, guided (path following, channels together; the "
+        "default), fast (the paper's graph cut on a cheaper schedule) or paper (Eqs. 3-5 from k = 0, slow); "
+        "--solver is its deprecated former name (--single only)",
     )
 
+
+def _add_tonemap(commands: Any) -> None:
     tonemap = commands.add_parser(
         "tonemap",
         help="radiance files -> display PNGs",
@@ -433,154 +453,112 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tonemap.add_argument("--srgb", action="store_true", help="apply the sRGB transfer function to the result")
     tonemap.add_argument("--depth", type=int, choices=(8, 16), default=8, help="PNG bits per sample (default: 8)")
+    tonemap.add_argument("--nonfinite", choices=NONFINITE, default="replace", help=_NONFINITE_HELP)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``torch-modulo`` parser: one subcommand per builder (demo, simulate, unwrap, tonemap)."""
+    from torch_modulo import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="torch-modulo",
+        description="Unbounded HDR photography with a modulo camera (Zhao et al., ICCP 2015).",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for add in (_add_demo, _add_simulate, _add_unwrap, _add_tonemap):
+        add(commands)
     return parser
 
 
-# -------------------------------------------------------------------------------------------------- jobs
-# Top-level functions run in worker processes: job(task, options) reads task.source and writes task.outputs.
+# ------------------------------------------------------------------------------------------ job options
+# The options of each folder command's job (JSON-compatible; they decide whether an existing output is complete).
+# Usage errors end here with the subcommand's usage (exit code 2), before anything is written.
 
 
-def _scene_seed(seed: int, name: str) -> int:
-    """A per-scene seed from the run's seed and the input's name: the same on every worker, rank and rerun."""
-    return int.from_bytes(hashlib.sha256(f"{seed}:{name}".encode()).digest()[:8], "little") % (2**63)
-
-
-def _image_channels(image: Any, source: str) -> Any:
-    """(C, H, W) radiance with C = 1 or 3: grey stays grey; with 2 channels (grey + alpha, or two views) the first;
-    with 3 or more (RGBA, multi-view or multi-layer files, whose first channels are R, G, B) the first three."""
-    c = image.shape[0]
-    if c < 1:
-        raise ValueError(f"{source} has no channels")
-    if c == 1:
-        return image
-    return image[:1] if c == 2 else image[:3]
-
-
-def _finite(image: Any, source: str) -> None:
-    import torch
-
-    bad = int((~torch.isfinite(image)).sum())
-    if bad:
-        raise ValueError(f"{source} holds {bad} NaN or infinite values")
-
-
-def simulate_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
-    """Job of ``torch-modulo simulate``: one HDR file -> one frame-stack folder (atomic)."""
-    import torch
-
-    from torch_modulo.batch import atomic_output_dir
-    from torch_modulo.io import read_image, write_image
-    from torch_modulo.sensors import FrameStack, NoiseModel, SimulatedModuloSensor, write_frames
-
-    bits = int(options["bits"])
-    taus = [float(t) for t in options["exposures"]]
-    image = _image_channels(read_image(task.source, dtype=torch.float64), task.source)
-    _finite(image, task.source)
-    negatives = int((image < 0).sum())
-    image = image.clamp_min(0)
-    peak = float(image.max())
-    if options["scale"] == "auto":
-        if peak <= 0:
-            raise ValueError(f"{task.source} is black (maximum {peak}): --scale auto cannot scale it")
-        scale = (2**bits - 1) / (peak * min(taus))
-    else:
-        scale = float(options["scale"])
-    # Round to float32 first: radiance.exr (float32) then holds exactly the radiance the frames were captured from.
-    radiance = (image * scale).float().double()
-    noise = NoiseModel(**options["noise"]) if options["noise"] is not None else None
-    seed = _scene_seed(int(options["seed"]), task.name)
-    stack = SimulatedModuloSensor(bits, noise, seed=seed)(radiance.unsqueeze(0), taus)
-    metadata = {
-        **stack.metadata,
-        "source": task.name,
-        "radiance_scale": scale,
-        "unit": "counts per unit exposure",
-        "bits": bits,
-        "exposures": taus,
+def _simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
+    if args.format != "exr" and args.bits > 16:
+        sub.error(f"--format {args.format} holds at most 16 bits; got --bits {args.bits} (use --format exr)")
+    taus = sorted(args.exposures)
+    too_far = [(a, b) for a, b in zip(taus, taus[1:], strict=False) if b / a > 2**args.bits]
+    if too_far:
+        a, b = too_far[0]
+        print(
+            f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
+            "`torch-modulo unwrap` cannot count the rollovers between them",
+            file=sys.stderr,
+        )
+    options = {
+        "bits": args.bits,
+        "exposures": args.exposures,
+        "noise": args.noise,
+        "seed": args.seed,
+        "scale": args.scale,
+        "format": args.format,
+        "truth": args.truth,
     }
-    dtype = torch.float32 if bits <= 24 else torch.float64
-    stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind)
-    with atomic_output_dir(task.outputs[0]) as folder:
-        write_frames(stack, folder, format=options["format"])
-        if options["truth"]:
-            write_image(
-                folder / "radiance.exr",
-                radiance.float(),
-                {"source": task.name, "radiance_scale": scale, "unit": "counts per unit exposure"},
-            )
-    return {"shape": list(image.shape), "radiance_scale": scale, "negatives_clamped": negatives}
+    return _with_nonfinite(options, args.nonfinite)
 
 
-def unwrap_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
-    """Job of ``torch-modulo unwrap``: one frame stack (or, single shot, one modulus image) -> one radiance EXR."""
-
-    from torch_modulo.io import read_image, write_image
-
-    if options["single"]:
-        image, meta = read_image(task.source, with_metadata=True)
-        bits = options["bits"]
-        if bits is None:
-            bits = meta.get("bits", meta.get("bit_depth"))
-            if bits is None:
-                raise ValueError(f"no bit depth in the metadata of {task.source}: pass --bits")
-        exposure = options["exposure"] or meta.get("exposure") or 1.0
-        from torch_modulo.singleshot import unwrap_confidence, unwrap_single
-
-        solver = {"method": options["solver"]} if options["solver"] is not None else {}
-        counts = unwrap_single(image.unsqueeze(0), int(bits), workers=options["_solver_workers"], **solver)[0]
-        radiance = counts.double() / float(exposure)
-        metadata = {
-            "source": task.name,
-            "bits": int(bits),
-            "exposure": float(exposure),
-            "method": "single",
-            "solver": options["solver"] or "default",
-            "unit": "counts per unit exposure",
-        }
-        if options.get("confidence"):
-            confidence = unwrap_confidence(counts.double(), int(bits))
-            write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})
-    else:
-        from torch_modulo.multishot import merge_intensity, unwrap_multi
-        from torch_modulo.sensors import FileSensor
-
-        # The frames' own dtype (float32 for stacks from simulate: exact up to 24 bits; unwrap_multi decides in
-        # float64 internally, and the EXR stores float32 anyway).
-        stack = FileSensor(task.source, bits=options["bits"]).read()
-        if stack.batch_size != 1:
-            raise ValueError(f"{task.source} holds {stack.batch_size} scenes; unwrap expects one scene per stack")
-        if stack.kind == "intensity":
-            radiance = merge_intensity(stack.frames, stack.exposures, stack.bits)[0]
-            method = "merge_intensity"
-        else:
-            radiance = unwrap_multi(stack.moduli, stack.exposures, stack.bits, options["method"])[0]
-            method = options["method"]
-        metadata = {
-            "source": task.name,
-            "bits": stack.bits,
-            "exposures": stack.exposure_matrix()[0].tolist(),
-            "method": method,
-            "kind": stack.kind,
-            "unit": "counts per unit exposure",
-        }
-        if "radiance_scale" in stack.metadata:
-            metadata["radiance_scale"] = stack.metadata["radiance_scale"]
-    write_image(task.outputs[0], radiance.float(), metadata)
-    return {"shape": list(radiance.shape), "method": metadata["method"]}
+def _with_nonfinite(options: dict[str, Any], nonfinite: str) -> dict[str, Any]:
+    # Only a non-default policy joins the options: outputs an earlier version completed (files without NaN or
+    # infinite values, the only ones it accepted) are the same under the default, so they stay complete.
+    if nonfinite != "replace":
+        options["nonfinite"] = nonfinite
+    return options
 
 
-def tonemap_job(task: Any, options: Mapping[str, Any]) -> dict[str, Any]:
-    """Job of ``torch-modulo tonemap``: one radiance file -> one PNG."""
-    from torch_modulo import tonemap
-    from torch_modulo.io import read_image, write_image
+def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
+    if args.exposure is not None and not args.single:
+        sub.error("--exposure applies to --single only (frame stacks carry their exposures)")
+    option = getattr(args, "method_option", None) or "--method"
+    if args.confidence and not args.single:
+        sub.error("--confidence applies to --single only")
+    rule, method = "robust", None  # the option keys stay "method" (multi shot) and "solver" (single shot)
+    if args.single:
+        from torch_modulo.singleshot import METHODS
 
-    hdr = _image_channels(read_image(task.source), task.source)
-    _finite(hdr, task.source)
-    operator = getattr(tonemap, f"tonemap_{options['op']}")
-    display = operator(hdr.clamp_min(0).unsqueeze(0), **_tuples(options["params"]), srgb=options["srgb"])[0]
-    metadata = {"source": task.name, "op": options["op"], "params": options["params"], "srgb": options["srgb"]}
-    write_image(task.outputs[0], display, metadata, dtype=f"uint{options['depth']}", normalized=True)
-    return {"shape": list(hdr.shape)}
+        if args.method is not None and args.method not in METHODS:
+            sub.error(f"{option} must be one of {', '.join(sorted(METHODS))}; got {args.method!r}")
+        method = args.method
+    elif option == "--solver":
+        sub.error("--solver applies to --single only")
+    elif args.method is not None:
+        if args.method not in _MULTI_RULES:
+            from torch_modulo.singleshot import METHODS
+
+            if args.method in METHODS:
+                sub.error(f"--method {args.method} is a single-shot method: use it with --single")
+            choices = ", ".join(repr(r) for r in _MULTI_RULES)
+            sub.error(f"argument --method/--solver: invalid choice: {args.method!r} (choose from {choices})")
+        rule = args.method
+    return {
+        "single": args.single,
+        "bits": args.bits,
+        "exposure": args.exposure,
+        "method": rule,
+        "solver": method,
+        "confidence": args.confidence,
+        # Graph cuts inside each job use processes of their own only when the batch itself runs one at a time.
+        "_solver_workers": None if args.workers == 1 else 1,
+    }
+
+
+def _tonemap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
+    from torch_modulo.pipeline import tonemap_options
+
+    try:
+        options = tonemap_options(args.op, dict(args.param), srgb=args.srgb, depth=args.depth)
+    except (TypeError, ValueError) as error:
+        sub.error(f"bad --param for --op {args.op}: {error}")
+    return _with_nonfinite(options, args.nonfinite)
+
+
+_OPTIONS: dict[str, Callable[[argparse.Namespace, argparse.ArgumentParser], dict[str, Any]]] = {
+    "simulate": _simulate_options,
+    "unwrap": _unwrap_options,
+    "tonemap": _tonemap_options,
+}
 
 
 # ------------------------------------------------------------------------------------------------ running
@@ -593,138 +571,38 @@ def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.Argume
     return parser
 
 
-def _is_stack(path: Path) -> bool:
-    return path.is_dir() and (path / "frames.json").is_file()
-
-
-def _plan(args: argparse.Namespace, source: Path, out: Path) -> tuple[list[Any], str]:
-    """The tasks of a folder command (sorted) and a description of what it looks for."""
-    from torch_modulo.batch import Task, discover
-
-    def suffix_match(extensions: Sequence[str]) -> Any:
-        return lambda p: p.is_file() and p.suffix.lower() in extensions
-
-    if args.command in ("simulate", "tonemap"):
-        found = discover(source, suffix_match(RADIANCE_EXTENSIONS))
-        wanted = f"radiance files ({' '.join(RADIANCE_EXTENSIONS)})"
-    elif args.single:
-        found = discover(source, suffix_match(MODULUS_EXTENSIONS))
-        wanted = f"modulus images ({' '.join(MODULUS_EXTENSIONS)})"
-    else:
-        found = discover(source, _is_stack)
-        wanted = "frame stacks (folders with a frames.json manifest)"
-    tasks = []
-    for name, path in found:
-        rel = Path(name)
-        if args.command == "simulate":
-            target = out / rel.with_suffix("")
-        elif args.command == "unwrap":
-            target = out / (rel.with_suffix(".exr") if args.single else rel.with_name(rel.name + ".exr"))
-        else:
-            target = out / rel.with_suffix(".png")
-        targets = [target]
-        if args.command == "unwrap" and args.single and args.confidence:
-            targets.append(target.with_name(f"{target.stem}.confidence.exr"))
-        tasks.append(Task(name, str(path), tuple(str(t) for t in targets)))
-    return tasks, wanted
-
-
-def _options(args: argparse.Namespace, sub: argparse.ArgumentParser, workers: int | None) -> dict[str, Any]:
-    """The job options (JSON-compatible; they decide whether an existing output is complete)."""
-    if args.command == "simulate":
-        if args.format != "exr" and args.bits > 16:
-            sub.error(f"--format {args.format} holds at most 16 bits; got --bits {args.bits} (use --format exr)")
-        taus = sorted(args.exposures)
-        too_far = [(a, b) for a, b in zip(taus, taus[1:], strict=False) if b / a > 2**args.bits]
-        if too_far:
-            a, b = too_far[0]
-            print(
-                f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
-                "`torch-modulo unwrap` cannot count the rollovers between them",
-                file=sys.stderr,
-            )
-        return {
-            "bits": args.bits,
-            "exposures": args.exposures,
-            "noise": args.noise,
-            "seed": args.seed,
-            "scale": args.scale,
-            "format": args.format,
-            "truth": args.truth,
-        }
-    if args.command == "unwrap":
-        if args.exposure is not None and not args.single:
-            sub.error("--exposure applies to --single only (frame stacks carry their exposures)")
-        # Graph cuts inside each job use processes of their own only when the batch itself runs one at a time.
-        if args.solver is not None and not args.single:
-            sub.error("--solver applies to --single only")
-        if args.confidence and not args.single:
-            sub.error("--confidence applies to --single only")
-        if args.single and args.solver is not None:
-            from torch_modulo.singleshot import METHODS
-
-            if args.solver not in METHODS:
-                sub.error(f"--solver must be one of {', '.join(sorted(METHODS))}; got {args.solver!r}")
-        return {
-            "single": args.single,
-            "bits": args.bits,
-            "exposure": args.exposure,
-            "method": args.method,
-            "solver": args.solver,
-            "confidence": args.confidence,
-            "_solver_workers": None if workers == 1 else 1,
-        }
-    params = dict(args.param)
-    from torch_modulo import tonemap
-
-    function = getattr(tonemap, f"tonemap_{args.op}")
-    allowed = [p for p in inspect.signature(function).parameters if p not in ("hdr", "srgb")]
-    unknown = sorted(set(params) - set(allowed))
-    if unknown:
-        sub.error(f"--op {args.op} has no parameter {unknown[0]!r}; its parameters are {', '.join(allowed)}")
-    try:  # the module twin validates its arguments on construction
-        getattr(tonemap, _TONEMAP_MODULES[args.op])(**_tuples(params), srgb=args.srgb)
-    except (TypeError, ValueError) as error:
-        sub.error(f"bad --param for --op {args.op}: {error}")
-    return {"op": args.op, "params": params, "srgb": args.srgb, "depth": args.depth}
-
-
 def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    from torch_modulo.batch import BatchError, check_folders, distributed_env, run_batch
+    from torch_modulo import pipeline
+    from torch_modulo.batch import BatchError, check_folders, distributed_env, require_ray, run_batch
 
     sub = _subparser(parser, args.command)
     prog = f"torch-modulo {args.command}"
     try:
         source, out = check_folders(args.input, args.output)
         env = distributed_env()
+        if args.engine == "ray":
+            require_ray()
     except BatchError as error:
         sub.error(str(error))
     if args.report is not None and source.is_dir() and source in Path(args.report).resolve().parents:
         sub.error(f"--report {args.report} is inside the input folder {source}; inputs are never written")
-    if args.engine == "ray":
-        from torch_modulo.batch import require_ray
-
-        try:
-            require_ray()
-        except BatchError as error:
-            sub.error(str(error))
-    options = _options(args, sub, args.workers)
+    options = _OPTIONS[args.command](args, sub)
+    single = getattr(args, "single", False)
     try:
-        tasks, wanted = _plan(args, source, out)
+        tasks, wanted = pipeline.folder_tasks(
+            args.command, source, out, single=single, confidence=getattr(args, "confidence", False)
+        )
     except OSError as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 1
     if not tasks:
         print(f"{prog}: error: no {wanted} found in {source}", file=sys.stderr)
         return 1
-    # Look the job up in the importable module, not in __main__ (python -m torch_modulo.cli, torchrun -m ...), so
-    # that worker processes can unpickle it.
-    job = getattr(importlib.import_module("torch_modulo.cli"), f"{args.command}_job")
     try:
         report = run_batch(
             args.command,
             tasks,
-            job,
+            pipeline.JOBS[args.command],
             options,
             out,
             input_path=source,
@@ -734,7 +612,9 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
             progress=args.progress,
             report_path=args.report,
             ray_address=args.ray_address,
-            preload=_PRELOAD[args.command] + (("torch_modulo.singleshot",) if getattr(args, "single", False) else ()),
+            preload=pipeline.PRELOAD[args.command] + (("torch_modulo.singleshot",) if single else ()),
+            weigh=pipeline.count_values,
+            merge_timeout=args.merge_timeout,
         )
     except BatchError as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
@@ -743,10 +623,21 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
     where = ""
     if env.world_size > 1:
         where = f"rank {env.rank}: "
-        if report.parts is None:  # this rank's own part (rank 0 holds the merged report when it could merge)
+        if report.parts is None:  # this rank's own part (rank 0 holds the merged report under torchrun)
             report_file = report_file.with_name(f"{report_file.stem}.rank{env.rank}{report_file.suffix}")
     print(f"{where}{report.summary()} (report: {report_file})", file=sys.stderr)
     return report.exit_code
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    from torch_modulo.demo import run_demo
+
+    try:
+        run_demo(args.out, args.scene, bits=args.bits, ratio=args.ratio, workers=args.workers, method=args.method)
+    except (OSError, ValueError, TypeError) as error:
+        print(f"torch-modulo demo: error: {error}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -754,18 +645,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "demo":
-        from torch_modulo.demo import run_demo
-
-        try:
-            run_demo(args.out, args.scene, bits=args.bits, ratio=args.ratio, workers=args.workers, method=args.solver)
-        except (OSError, ValueError, TypeError) as error:
-            print(f"torch-modulo demo: error: {error}", file=sys.stderr)
-            return 1
-        return 0
-    if args.command in ("simulate", "unwrap", "tonemap"):
-        return _run_folder_command(parser, args)
-    parser.error(f"unknown command {args.command!r}")
-    return 2
+        return _run_demo(args)
+    return _run_folder_command(parser, args)
 
 
 if __name__ == "__main__":

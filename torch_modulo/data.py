@@ -28,9 +28,9 @@ import torch.nn.functional as F
 from kornia.augmentation import IntensityAugmentationBase2D
 from torch.utils.data import Dataset
 
-from torch_modulo._checks import check_bits
+from torch_modulo._checks import check_bits, check_choice
 from torch_modulo.capture import capture_modulo
-from torch_modulo.io import read_image
+from torch_modulo.pipeline import NONFINITE, load_radiance
 from torch_modulo.sensors.simulated import NoiseModel, simulate_capture
 
 __all__ = ["HDR_EXTENSIONS", "HDRFolder", "RandomModuloCapture"]
@@ -56,9 +56,11 @@ def _size(value: int | Sequence[int] | None, name: str) -> tuple[int, int] | Non
 class HDRFolder(Dataset):
     """HDR radiance maps from a folder, as (C, H, W) float tensors >= 0.
 
-    Each item is read with OpenImageIO, made non-negative (NaN and negative values, which lossy compression and
-    sensor processing leave behind, become 0; +Inf becomes the image's largest finite value), given ``channels``
-    channels, optionally resized, scaled and cropped, then passed to ``transform``.
+    Each item is read with :func:`torch_modulo.pipeline.load_radiance`, the reader the command line and the demo
+    use: negative values (which lossy compression and sensor processing leave behind) become 0, and NaN and
+    infinite values are replaced (NaN and -Inf by 0, +Inf by the image's largest finite value) or, with
+    ``nonfinite="raise"``, refused with the file named. The item is given ``channels`` channels, optionally
+    resized, scaled and cropped, then passed to ``transform``.
 
     Args:
         root: folder searched (recursively by default) for files with ``extensions``, in sorted path order.
@@ -78,10 +80,13 @@ class HDRFolder(Dataset):
             ``keepdim=True``).
         return_path: items are ``(image, path string)`` instead of the image alone.
         dtype: floating dtype of the items.
+        nonfinite: ``"replace"`` (default) or ``"raise"``: what reading an item does with NaN and infinite
+            values. A file with no finite value at all is refused either way.
 
     Raises:
         FileNotFoundError: ``root`` does not exist.
-        ValueError: no files found, bad sizes or options; when reading an item, an image smaller than the crop.
+        ValueError: no files found, bad sizes or options; when reading an item, an image smaller than the crop, or
+            NaN or infinite values it may not replace (the message names the file and counts them).
         OSError: an item cannot be read (the message names the file).
 
     Example:
@@ -108,6 +113,7 @@ class HDRFolder(Dataset):
         transform: Callable[[torch.Tensor], Any] | None = None,
         return_path: bool = False,
         dtype: torch.dtype = torch.float32,
+        nonfinite: str = "replace",
     ) -> None:
         root = Path(root)
         if not root.is_dir():
@@ -147,31 +153,15 @@ class HDRFolder(Dataset):
         if dtype not in (torch.float16, torch.bfloat16, torch.float32, torch.float64):
             raise TypeError(f"dtype must be a floating torch dtype; got {dtype}")
         self.dtype = dtype
+        self.nonfinite = check_choice(nonfinite, "nonfinite", NONFINITE)
 
     def __len__(self) -> int:
         return len(self.paths)
 
     def load(self, index: int) -> torch.Tensor:
         """Read item ``index`` before resizing, scaling and cropping: a (C, H, W) float32 radiance map >= 0."""
-        path = self.paths[index]
-        image = read_image(path)
+        image = load_radiance(self.paths[index], channels=self.channels, nonfinite=self.nonfinite)
         assert isinstance(image, torch.Tensor)
-        bad = ~torch.isfinite(image)
-        if bool(bad.any()):
-            finite = image[~bad]
-            top = float(finite.max()) if finite.numel() else 0.0
-            image = torch.nan_to_num(image, nan=0.0, posinf=max(top, 0.0), neginf=0.0)
-        image = image.clamp_(min=0.0)
-        c = image.shape[0]
-        if self.channels == 3:
-            image = image.expand(3, -1, -1).clone() if c == 1 else image[:3]
-            if image.shape[0] != 3:  # two channels (grey + alpha): keep the first
-                image = image[:1].expand(3, -1, -1).clone()
-        elif self.channels == 1 and c >= 3:
-            weights = torch.tensor([0.2126, 0.7152, 0.0722], dtype=image.dtype).view(3, 1, 1)
-            image = (image[:3] * weights).sum(0, keepdim=True)
-        elif self.channels == 1:
-            image = image[:1]
         return image
 
     def _resized(self, image: torch.Tensor) -> torch.Tensor:

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable
@@ -26,9 +25,11 @@ import torch
 
 from torch_modulo import io
 from torch_modulo.assets import default_scene_path
+from torch_modulo.batch import write_json
 from torch_modulo.capture import capture_intensity, capture_modulo
 from torch_modulo.metrics import exact_k_map, exact_k_share, psnr
 from torch_modulo.multishot import merge_intensity, unwrap_multi
+from torch_modulo.pipeline import load_radiance
 from torch_modulo.singleshot import unwrap_confidence, unwrap_single
 from torch_modulo.tonemap import REC709_LUMA, tonemap_histogram
 
@@ -80,7 +81,9 @@ def run_demo(
 
     Args:
         out_dir: folder for the outputs (created if needed; existing demo files in it are replaced atomically).
-        scene: an HDR file (EXR/HDR); default the embedded CC0 scene.
+        scene: an HDR file (EXR/HDR); default the embedded CC0 scene. It is read with
+            :func:`~torch_modulo.pipeline.load_radiance` as RGB (grey repeated); NaN and infinite values are
+            replaced, negative values clamped to 0.
         bits: the simulated sensors' bit depth.
         ratio: neighbouring exposure ratio of the multi-shot captures (at most ``2**bits - 1``).
         workers: worker processes for the single-shot unwrapping (default: one per core when it pays).
@@ -95,7 +98,10 @@ def run_demo(
     path = Path(scene) if scene is not None else default_scene_path()
     timings: dict[str, float] = {}
 
-    hdr = io.read_image(path)[:3].clamp_min(0)
+    hdr, counts = load_radiance(path, channels=3, with_counts=True)
+    replaced = counts["nan"] + counts["posinf"] + counts["neginf"]
+    if replaced:
+        log(f"scene {path.name}: replaced {replaced} NaN or infinite values (NaN and -Inf by 0, +Inf by the maximum)")
     luma = torch.einsum("chw,c->hw", hdr, torch.tensor(REC709_LUMA, dtype=hdr.dtype))
     radiance = (hdr * (SCENE_PEAK / float(torch.quantile(luma.flatten(), 0.999)))).unsqueeze(0)  # (1, 3, H, W)
     truth = torch.floor(radiance)
@@ -202,8 +208,6 @@ def run_demo(
         "timings_s": timings,
         "files": [str(p) for p in written],
     }
-    tmp = out / ".summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    os.replace(tmp, out / "summary.json")
+    write_json(out / "summary.json", summary)
     log(f"wrote {len(written) + 1} files to {out}/ (comparison.png shows them side by side)")
     return summary
