@@ -119,3 +119,10 @@ def test_bad_settings_are_named():
         unwrap_confidence(torch.zeros(3, 3), bits=0)
     with pytest.raises(ValueError, match="6"):
         UnwrapConfidence(neighborhood=6)
+
+
+def test_regression_float_bits_and_empty_batch():
+    restored = torch.tensor([[[[0.0, 16.0, 32.0]]]])
+    assert torch.equal(unwrap_confidence(restored, bits=8.0), unwrap_confidence(restored, bits=8))
+    empty = unwrap_confidence(torch.zeros(0, 1, 4, 4), bits=8)
+    assert empty.shape == (0, 1, 4, 4)

@@ -196,3 +196,12 @@ class TestUnwrapEnergy:
             unwrap_energy(torch.zeros(3, 3, dtype=torch.int64))
         with pytest.raises(ValueError, match="6"):
             UnwrapEnergy(neighborhood=6)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_regression_potential_and_is_representable_refuse_nan_and_inf(bad):
+    x = torch.tensor([0.0, bad])
+    with pytest.raises(ValueError, match="x must be finite"):
+        potential(x, bits=8)
+    with pytest.raises(ValueError, match="x must be finite"):
+        is_representable(x, bits=8)

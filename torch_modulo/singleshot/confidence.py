@@ -89,12 +89,14 @@ def unwrap_confidence(restored: torch.Tensor, bits: int = 8, *, neighborhood: in
     check_tensor(restored, "restored")
     check_floating(restored, "restored")
     check_image_shape(restored, "restored", 2, 4)
-    check_bits(bits, restored.dtype)
+    bits = check_bits(bits, restored.dtype)
     pair_offsets(neighborhood)
     h, w = restored.shape[-2:]
     if h == 0 or w == 0:
         raise ValueError(f"restored must not be an empty image; got shape {tuple(restored.shape)}")
     check_finite(restored, "restored")
+    if restored.numel() == 0:  # an empty batch
+        return torch.empty_like(restored)
     planes = restored.detach().to("cpu", torch.float64).reshape(-1, h, w).numpy()
     half = float(1 << (bits - 1))
     out = np.stack([bottleneck_steps(plane, bits, neighborhood) for plane in planes])
@@ -120,9 +122,8 @@ class UnwrapConfidence(nn.Module):
 
     def __init__(self, bits: int = 8, *, neighborhood: int = 8) -> None:
         super().__init__()
-        check_bits(bits, torch.float64)
+        self.bits = check_bits(bits, torch.float64)
         pair_offsets(neighborhood)
-        self.bits = bits
         self.neighborhood = neighborhood
 
     def forward(self, restored: torch.Tensor) -> torch.Tensor:

@@ -132,6 +132,7 @@ def potential(
         tensor([ 0.0000, 10.0000, 12.8000, 13.2915])
     """
     check_floating(x, "x")
+    check_finite(x, "x")
     p = EnergyParams.make(bits, a1, a2, x0)
     ax = x.abs()
     return torch.where(ax <= p.x0, p.a1 * ax, p.a2 * ax * ax + p.b)
@@ -169,6 +170,7 @@ def is_representable(
         tensor([ True,  True, False])
     """
     check_floating(x, "x")
+    check_finite(x, "x")
     step = check_int(step, "step", 1)
     p = EnergyParams.make(bits, a1, a2, x0)
     shift = float(step * p.period)
