@@ -2,14 +2,20 @@
 """Time the elementwise layers as a ratio to ``tensor.clone()`` of the same data, in the same run.
 
 The goal, on a (8, 3, 1024, 1024) float32 batch: within 2x of clone() (the layers are memory-bandwidth bound).
-For the multi-shot unwrap the data is the (B, M, C, H, W) stack of moduli (M = 3 exposures), so its reference is
-the clone of that stack; every other operation is compared with the clone of its (B, C, H, W) input.
+For the multi-exposure capture and the multi-shot unwrap the data is the (B, M, C, H, W) stack of moduli (M = 3
+exposures), so their reference is the clone of that stack; every other operation is compared with the clone of its
+(B, C, H, W) input.
+
+The rows marked "compiled" time the layers under ``torch.compile(layer, fullgraph=True)`` (Inductor) with
+``torch_modulo.validation(False)``, so without the value checks; compilation happens in the warm-up call and is
+not timed. ``--no-compile`` skips them (compiling takes a while on a small CPU).
 
 Prints a table and a JSON summary (medians over ``--repeats`` runs, interleaved with the clone timings so that
 both see the same machine load).
 
     python benchmarks/bench_elementwise.py                      # the full size
     python benchmarks/bench_elementwise.py --shape 2 3 256 256  # a quick run
+    python benchmarks/bench_elementwise.py --no-compile         # eager rows only
 """
 
 from __future__ import annotations
@@ -51,6 +57,27 @@ def bench(name: str, fn: Callable[[], object], reference: torch.Tensor, repeats:
     return {"op": name, "ms": 1e3 * op, "clone_ms": 1e3 * ref, "ratio": op / ref}
 
 
+def compiled_rows(
+    radiance: torch.Tensor, moduli: torch.Tensor, counts: torch.Tensor, taus: list[float], bits: int, repeats: int
+) -> list[dict[str, float | str]]:
+    """The layers under ``torch.compile(fullgraph=True)`` with validation off, each against the same clone."""
+    device = radiance.device
+    stack = tm.ExposureStack(moduli, torch.tensor(taus, dtype=torch.float64, device=device))
+    cases = [
+        ("modulo_wrap", tm.ModuloWrap(bits), counts, counts),
+        ("capture_modulo", tm.ModuloCapture(taus[-1], bits), radiance, radiance),
+        ("capture_intensity", tm.IntensityCapture(taus[-1], bits), radiance, radiance),
+        ("capture_stack", tm.MultiExposureCapture(taus, bits), radiance, moduli),
+        ("unwrap_multi robust", tm.MultiExposureUnwrap(bits), stack, moduli),
+    ]
+    rows = []
+    with tm.validation(False):
+        for name, layer, data, reference in cases:
+            fn = torch.compile(layer.to(device), fullgraph=True, dynamic=False)
+            rows.append(bench(f"{name} compiled", lambda fn=fn, data=data: fn(data), reference, repeats))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--shape", type=int, nargs=4, default=[8, 3, 1024, 1024], metavar=("B", "C", "H", "W"))
@@ -59,6 +86,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
+    parser.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     args = parser.parse_args(argv)
 
     device, dtype = torch.device(args.device), getattr(torch, args.dtype)
@@ -74,16 +102,19 @@ def main(argv: list[str] | None = None) -> None:
         bench("modulo_wrap", lambda: tm.modulo_wrap(counts, args.bits), counts, args.repeats),
         bench("capture_modulo", lambda: tm.capture_modulo(radiance, taus[-1], args.bits), radiance, args.repeats),
         bench("capture_intensity", lambda: tm.capture_intensity(radiance, taus[-1], args.bits), radiance, args.repeats),
+        bench("capture_stack", lambda: tm.capture_stack(radiance, taus, args.bits), moduli, args.repeats),
         bench("unwrap_multi robust", lambda: tm.unwrap_multi(moduli, taus, args.bits), moduli, args.repeats),
         bench(
             "unwrap_multi paper", lambda: tm.unwrap_multi(moduli, taus, args.bits, method="paper"), moduli, args.repeats
         ),
         bench("merge_intensity", lambda: tm.merge_intensity(frames, taus, args.bits), frames, args.repeats),
     ]
+    if not args.no_compile:
+        rows += compiled_rows(radiance, moduli, counts, taus, args.bits, args.repeats)
     print(f"shape {tuple(args.shape)} {args.dtype} on {device}, {torch.get_num_threads()} threads, M = {len(taus)}")
-    print(f"{'operation':<22}{'ms':>10}{'clone ms':>10}{'x clone':>9}")
+    print(f"{'operation':<30}{'ms':>10}{'clone ms':>10}{'x clone':>9}")
     for row in rows:
-        print(f"{row['op']:<22}{row['ms']:>10.1f}{row['clone_ms']:>10.1f}{row['ratio']:>9.2f}")
+        print(f"{row['op']:<30}{row['ms']:>10.1f}{row['clone_ms']:>10.1f}{row['ratio']:>9.2f}")
     summary = {
         "shape": args.shape,
         "dtype": args.dtype,

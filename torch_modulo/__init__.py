@@ -9,12 +9,16 @@ adapters, data pipelines and a command line.
 from __future__ import annotations
 
 from torch_modulo import data, io, sensors
+from torch_modulo._checks import set_validation, validation, validation_enabled
 from torch_modulo.capture import (
+    ExposureStack,
     IntensityCapture,
     ModuloCapture,
     ModuloWrap,
+    MultiExposureCapture,
     capture_intensity,
     capture_modulo,
+    capture_stack,
     modulo_wrap,
 )
 from torch_modulo.metrics import (
@@ -100,8 +104,10 @@ __all__ = [
     "psnr_pu21",
     "pu21_encode",
     "ssim_tonemapped",
+    "ExposureStack",
     "IntensityCapture",
     "IntensityMerge",
+    "MultiExposureCapture",
     "MultiExposureUnwrap",
     "ModuloCapture",
     "ModuloWrap",
@@ -111,8 +117,12 @@ __all__ = [
     "sensors",
     "capture_intensity",
     "capture_modulo",
+    "capture_stack",
     "merge_intensity",
     "modulo_wrap",
     "plan_exposures",
+    "set_validation",
     "unwrap_multi",
+    "validation",
+    "validation_enabled",
 ]

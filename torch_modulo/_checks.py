@@ -6,13 +6,25 @@ every message names the argument and the offending value, e.g.
 
 (Kornia's ``KORNIA_CHECK`` raises ``kornia.core.exceptions.BaseError``, which is not a ``ValueError`` in the
 Kornia release this project uses, so the checks are written here.)
+
+Validation switch:
+    The checks that read a tensor's values (:func:`check_finite`, :func:`check_nonnegative`, the value pass of
+    :func:`check_modulus`, the positivity of :func:`exposure_tensor`, and the library's other value checks
+    built on them) cost a reduction pass and a host sync each, and break a ``torch.compile`` graph. They are on
+    by default; :func:`validation` (a context manager and decorator) or :func:`set_validation` switch them off,
+    for every thread of the process. Under ``torch.compile`` the layers take whole-tensor paths, so with the
+    checks off they trace in one graph and ``torch.compile(layer, fullgraph=True)`` works (the capture layers, the
+    multi-exposure unwrap and the global tone maps). With validation off, invalid input (negative or non-finite
+    radiance, moduli outside ``[0, 2**bits)``, non-positive exposures) is no longer refused and gives undefined
+    results. Checks of Python arguments, dtypes and shapes cost nothing and stay on.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import torch
@@ -33,7 +45,84 @@ __all__ = [
     "check_tensor",
     "exposure_tensor",
     "nonnegative_max",
+    "set_validation",
+    "validation",
+    "validation_enabled",
 ]
+
+# A plain module global (not thread-local) so that torch.compile guards on it: a compiled layer recompiles when the
+# switch changes instead of silently keeping the path it was traced with.
+_VALIDATION: bool = True
+
+
+def validation_enabled() -> bool:
+    """Whether the value checks are on (the default); see :func:`validation`.
+
+    Example:
+        >>> validation_enabled()
+        True
+    """
+    return _VALIDATION
+
+
+def set_validation(enabled: bool) -> bool:
+    """Switch the value checks on or off for the whole process and return the previous setting.
+
+    Prefer the :func:`validation` context manager, which restores the previous setting on exit.
+
+    Args:
+        enabled: ``True`` to check tensor values (the default), ``False`` to skip those checks.
+
+    Returns:
+        The setting before the call.
+
+    Raises:
+        TypeError: ``enabled`` is not a bool.
+
+    Example:
+        >>> previous = set_validation(False)
+        >>> validation_enabled()
+        False
+        >>> _ = set_validation(previous)
+    """
+    global _VALIDATION
+    enabled = check_flag(enabled, "enabled")
+    previous, _VALIDATION = _VALIDATION, enabled
+    return previous
+
+
+@contextmanager
+def validation(enabled: bool) -> Iterator[None]:
+    """Context manager (and decorator) that switches the value checks on or off, restoring them on exit.
+
+    The checks that read tensor values (non-negative, finite radiance; moduli that are integers in
+    ``[0, 2**bits)``; positive exposures) each cost a pass over the data and a host sync, and they break
+    ``torch.compile`` graphs. Inside ``validation(False)`` they are skipped, so the layers trace in one graph and
+    ``torch.compile(layer, fullgraph=True)`` works; invalid input then gives undefined results instead of an error.
+    The setting is process-wide (shared by threads); a compiled layer recompiles when it changes.
+
+    Args:
+        enabled: ``False`` to skip the value checks, ``True`` to force them on.
+
+    Raises:
+        TypeError: ``enabled`` is not a bool.
+
+    Example:
+        >>> x = torch.tensor([-1.0, 2.0])
+        >>> check_nonnegative(x, "radiance")
+        Traceback (most recent call last):
+        ...
+        ValueError: radiance must be >= 0; got min -1.0
+        >>> with validation(False):
+        ...     check_nonnegative(x, "radiance")
+        tensor([-1.,  2.])
+    """
+    previous = set_validation(enabled)
+    try:
+        yield
+    finally:
+        set_validation(previous)
+
 
 #: Largest bit depth whose integers (up to 2**bits) each floating dtype holds exactly.
 MAX_BITS: dict[torch.dtype, int] = {
@@ -124,12 +213,14 @@ def check_real(
     def fail(requirement: str) -> ValueError:
         return ValueError(f"{name} must be {what or requirement}; got {value}")
 
-    bad_inf = math.isinf(value) and not (allow_inf and value > 0)
-    if low is not None and (math.isnan(value) or bad_inf or value < low):
+    # Comparisons rather than math.isnan / math.isinf: torch.compile traces them on symbolic floats too.
+    is_nan = value != value
+    bad_inf = abs(value) == math.inf and not (allow_inf and value > 0)
+    if low is not None and (is_nan or bad_inf or value < low):
         raise fail(f"finite and >= {low:g}")
-    if positive and (math.isnan(value) or bad_inf or value <= 0):
+    if positive and (is_nan or bad_inf or value <= 0):
         raise fail("finite and > 0")
-    if math.isnan(value) or bad_inf:
+    if is_nan or bad_inf:
         raise fail("finite")
     if high is not None and value > high:
         raise fail(f"<= {high:g}")
@@ -209,9 +300,10 @@ def check_bits(bits: object, dtype: torch.dtype = torch.float32) -> int:
 def check_finite(x: torch.Tensor, name: str) -> torch.Tensor:
     """Raise ``ValueError`` if ``x`` holds NaN or infinity; the message counts them.
 
-    One reduction pass (NaN and Inf propagate into the extremes); the counting passes run only on failure.
+    One reduction pass (NaN and Inf propagate into the extremes); the counting passes run only on failure. A no-op
+    with :func:`validation` off.
     """
-    if x.numel() and x.is_floating_point():
+    if _VALIDATION and x.numel() and x.is_floating_point():
         lo, hi = torch.aminmax(x.detach())
         if not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
             n_nan = int(torch.isnan(x).sum())
@@ -221,13 +313,19 @@ def check_finite(x: torch.Tensor, name: str) -> torch.Tensor:
 
 
 def check_nonnegative(x: torch.Tensor, name: str) -> torch.Tensor:
-    """Raise ``ValueError`` if ``x`` is not finite or holds negative values (one reduction pass when valid)."""
-    nonnegative_max(x, name)
+    """Raise ``ValueError`` if ``x`` is not finite or holds negative values (one reduction pass when valid).
+
+    A no-op with :func:`validation` off.
+    """
+    if _VALIDATION:
+        nonnegative_max(x, name)
     return x
 
 
 def nonnegative_max(x: torch.Tensor, name: str) -> float:
     """Validate ``x`` as :func:`check_nonnegative` does and return its largest value (0.0 when empty).
+
+    With :func:`validation` off it only returns the largest value (NaN propagates; negatives are not refused).
 
     Example:
         >>> nonnegative_max(torch.tensor([0.5, 3.0]), "radiance")
@@ -235,6 +333,8 @@ def nonnegative_max(x: torch.Tensor, name: str) -> float:
     """
     if not x.numel():
         return 0.0
+    if not _VALIDATION:
+        return float(x.detach().max())
     lo, hi = torch.aminmax(x.detach())
     lo_f, hi_f = float(lo), float(hi)
     if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
@@ -248,11 +348,11 @@ def check_modulus(modulus: torch.Tensor, bits: int, name: str = "modulus") -> to
     """Validate a modulus image: a floating tensor of integers in ``[0, 2**bits)``.
 
     One fused pass computes the extremes and the integrality test; the slow diagnostic passes run only when
-    something is wrong.
+    something is wrong. With :func:`validation` off only the dtype and ``bits`` are checked.
     """
     check_floating(modulus, name)
     check_bits(bits, modulus.dtype)
-    if modulus.numel() == 0:
+    if not _VALIDATION or modulus.numel() == 0:
         return modulus
     lo, hi = torch.aminmax(modulus)
     lo_f, hi_f = float(lo), float(hi)
@@ -300,6 +400,8 @@ def exposure_tensor(
 ) -> torch.Tensor:
     """Turn a positive finite exposure (float, sequence or tensor) into a tensor on ``like``'s device and dtype.
 
+    With :func:`validation` off the values are not checked (the conversion is then traceable by ``torch.compile``).
+
     Raises:
         TypeError: ``exposure`` is not a number, sequence of numbers or tensor.
         ValueError: a value is not positive or not finite.
@@ -320,7 +422,7 @@ def exposure_tensor(
         tau = torch.tensor(values, device=like.device, dtype=like.dtype)
     else:
         raise TypeError(f"{name} must be a positive number, a sequence of numbers or a tensor; got {exposure!r}")
-    if tau.numel():
+    if _VALIDATION and tau.numel():
         values = tau.detach()
         finite = torch.isfinite(values)
         if not bool(finite.all()):

@@ -1,5 +1,10 @@
 """Capture models: Eq. 1 of the paper and the quantised modulo and intensity (conventional) sensors.
 
+:func:`capture_stack` and :class:`MultiExposureCapture` take one radiance at several exposures and return the
+(B, M, C, H, W) stack of modulus images that :func:`~torch_modulo.unwrap_multi` decodes; the layer returns it as
+an :class:`ExposureStack` (moduli and exposures), which :class:`~torch_modulo.MultiExposureUnwrap` takes as its
+one input, so ``nn.Sequential(MultiExposureCapture(...), MultiExposureUnwrap(...))`` chains.
+
 A noise-free sensor with exposure ``tau`` reads the counts ``I = floor(tau * E)`` of the radiance ``E``. A
 modulo sensor keeps the low ``bits`` bits, ``I_m = mod(I, 2**bits)`` (Eq. 1); a conventional ("intensity")
 sensor clips at ``2**bits - 1``.
@@ -22,11 +27,17 @@ Speed:
     floating-point operations (``x - P * floor(x / P)`` instead of ``torch.remainder``); on the CPU the work runs
     tile by tile through cache-sized buffers (:mod:`torch_modulo._tiling`), so these layers cost about as much as
     ``tensor.clone()``.
+
+Compilation:
+    Under ``torch.compile`` the layers use whole-tensor operations with the same arithmetic (no CPU tiles), and
+    with :func:`torch_modulo.validation` off they hold no data-dependent branch, so
+    ``torch.compile(layer, fullgraph=True)`` traces them in one graph. The compiled output equals the eager one.
 """
 
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import torch
 from torch import nn
@@ -37,24 +48,39 @@ from torch_modulo._checks import (
     check_finite,
     check_flag,
     check_floating,
+    check_image_shape,
     exposure_tensor,
     nonnegative_max,
+    validation_enabled,
 )
 from torch_modulo._tiling import CPU_TILE as CPU_TILE  # re-exported: the tiling used to live here
 from torch_modulo._tiling import column_tiles as column_tiles
 
 __all__ = [
+    "ExposureStack",
     "IntensityCapture",
     "ModuloCapture",
     "ModuloWrap",
+    "MultiExposureCapture",
     "capture_intensity",
     "capture_modulo",
+    "capture_stack",
     "modulo_wrap",
 ]
 
 
 def _needs_grad(*tensors: torch.Tensor) -> bool:
     return torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
+
+
+def _compiling() -> bool:
+    """Whether ``torch.compile`` is tracing: take whole-tensor operations instead of the tiled CPU loops."""
+    return torch.compiler.is_compiling()
+
+
+def _wrap(y: torch.Tensor, period: float) -> torch.Tensor:
+    """``y - period * floor(y / period)`` out of place: the arithmetic of :func:`_wrap_rows_`."""
+    return y - period * torch.floor(y * (1.0 / period))
 
 
 def _wrap_rows_(y: torch.Tensor, period: float, scratch: torch.Tensor) -> torch.Tensor:
@@ -82,6 +108,11 @@ def _elementwise_(
     x: torch.Tensor, tau: torch.Tensor | float, period: float, *, floor: bool, clip_top: float | None
 ) -> torch.Tensor:
     """``wrap(floor(tau * x))`` (or clip instead of wrap) without autograd, tiled in cache on the CPU."""
+    if _compiling():
+        y = x * tau
+        if floor:
+            y = torch.floor(y)
+        return y.clamp(max=clip_top) if clip_top is not None else _wrap(y, period)
     tau_t = tau if isinstance(tau, torch.Tensor) else torch.tensor(tau, dtype=x.dtype, device=x.device)
     rows = _as_rows(x, tau_t) if x.device.type == "cpu" else None
     if rows is None:
@@ -149,7 +180,9 @@ def modulo_wrap(counts: torch.Tensor, bits: int = 8) -> torch.Tensor:
     else:
         out = _elementwise_(counts, 1.0, period, floor=False, clip_top=None)
     # Tiny negative non-integers can round up to exactly ``period``; keep the result in [0, period).
-    if out.numel() and float(out.detach().max()) >= period:
+    if _compiling():
+        out = torch.where(out >= period, out - period, out)
+    elif out.numel() and float(out.detach().max()) >= period:
         out = torch.where(out >= period, out - period, out)
     return out
 
@@ -161,14 +194,19 @@ def _capture(
     check_floating(radiance, "radiance")
     bits = check_bits(bits, radiance.dtype)
     straight_through = check_flag(straight_through, "straight_through")
-    peak = nonnegative_max(radiance, "radiance")
     tau = _broadcast_exposure(exposure_tensor(exposure, radiance), radiance)
-    if not clip:
-        _warn_inexact_counts(peak, tau, radiance.dtype)
+    if validation_enabled():
+        peak = nonnegative_max(radiance, "radiance")
+        if not clip:
+            _warn_inexact_counts(peak, tau, radiance.dtype)
     period = float(2**bits)
     if not _needs_grad(radiance, tau):
         return _elementwise_(radiance, tau, period, floor=True, clip_top=period - 1 if clip else None)
-    y = radiance * tau
+    return _counts_autograd(radiance * tau, period, straight_through, clip)
+
+
+def _counts_autograd(y: torch.Tensor, period: float, straight_through: bool, clip: bool) -> torch.Tensor:
+    """``floor(y)`` wrapped (or clipped) with autograd: floor's zero gradient, or the straight-through one."""
     counts = torch.floor(y)
     if straight_through:
         counts = y + (counts - y).detach()
@@ -177,7 +215,7 @@ def _capture(
     return counts - period * torch.floor(counts / period).detach()
 
 
-def _warn_inexact_counts(peak: float, tau: torch.Tensor, dtype: torch.dtype) -> None:
+def _warn_inexact_counts(peak: float, tau: torch.Tensor, dtype: torch.dtype, stacklevel: int = 4) -> None:
     """Warn when the largest count ``floor(peak * max(tau))`` is beyond the integers ``dtype`` holds exactly."""
     limit = MAX_BITS.get(dtype)
     if limit is None or peak == 0.0 or not tau.numel():
@@ -188,7 +226,7 @@ def _warn_inexact_counts(peak: float, tau: torch.Tensor, dtype: torch.dtype) -> 
             f"counts reach {top:.0f}, beyond what {dtype} holds exactly (2**{limit} = {2**limit}): their low bits, "
             "which the modulo sensor keeps, are lost; use float64 radiance for exact counts",
             UserWarning,
-            stacklevel=4,
+            stacklevel=stacklevel,
         )
 
 
@@ -313,3 +351,160 @@ class IntensityCapture(_Capture):
 
     def forward(self, radiance: torch.Tensor) -> torch.Tensor:
         return capture_intensity(radiance, self.exposure, self.bits, straight_through=self.straight_through)
+
+
+class ExposureStack(NamedTuple):
+    """Modulus images of one radiance taken at several exposures, with those exposures.
+
+    What :class:`MultiExposureCapture` returns and :class:`~torch_modulo.MultiExposureUnwrap` takes as its one
+    input. A named tuple, so it unpacks (``moduli, exposures = stack``), pickles, and batches in a ``DataLoader``
+    (the default collate stacks both fields: (M, C, H, W) samples give (B, M, C, H, W) moduli and (B, M)
+    exposures).
+
+    Example:
+        >>> stack = MultiExposureCapture(exposures=[1.0, 8.0], bits=8)(torch.tensor([[[[3.0, 40.0]]]]))
+        >>> stack.moduli[0, :, 0, 0]
+        tensor([[ 3., 40.],
+                [24., 64.]])
+        >>> stack.exposures
+        tensor([1., 8.], dtype=torch.float64)
+    """
+
+    #: (B, M, C, H, W) or (M, C, H, W) modulus images, integers in ``[0, 2**bits)``.
+    moduli: torch.Tensor
+    #: Exposure per frame: (M,) shared by the batch, or (B, M).
+    exposures: torch.Tensor
+
+
+def _stack_exposures(tau: torch.Tensor, batch: int, unbatched: bool) -> torch.Tensor:
+    """Shape (M,) or (B, M) exposures as (1 or B, M, 1, 1, 1) for a (B, C, H, W) radiance."""
+    if tau.dim() == 1 and tau.numel():
+        return tau.view(1, -1, 1, 1, 1)
+    if tau.dim() == 2 and not unbatched and tau.shape[0] == batch and tau.shape[1]:
+        return tau.view(batch, -1, 1, 1, 1)
+    wanted = "(M,)" if unbatched else f"(M,) or (B, M) with B = {batch}"
+    raise ValueError(f"exposures must have shape {wanted} and M >= 1; got {tuple(tau.shape)}")
+
+
+def _stack_tiled(x: torch.Tensor, tau: torch.Tensor, period: float) -> torch.Tensor:
+    """CPU path of :func:`capture_stack`: each tile of the radiance is read from cache once per exposure."""
+    b = x.shape[0]
+    flat = x.reshape(b, x[0].numel() if b else 0)
+    m = tau.shape[1]
+    rates = tau.reshape(tau.shape[0], m)  # (1 or B, M)
+    out = torch.empty((b, m, flat.shape[1]), dtype=x.dtype)
+    tiles = column_tiles(flat.shape[1], b * m)
+    scratch = torch.empty((b, tiles[0].stop if tiles else 0), dtype=x.dtype)
+    for cols in tiles:
+        for i in range(m):
+            o = out[:, i, cols]
+            torch.mul(flat[:, cols], rates[:, i : i + 1], out=o).floor_()
+            _wrap_rows_(o, period, scratch[:, : o.shape[1]])
+    return out.view(b, m, *x.shape[1:])
+
+
+def capture_stack(
+    radiance: torch.Tensor,
+    exposures: list[float] | tuple[float, ...] | torch.Tensor,
+    bits: int = 8,
+    *,
+    straight_through: bool = False,
+) -> torch.Tensor:
+    r"""Noise-free modulo sensor at several exposures, stacked on a new exposure dimension (Eq. 1 per frame).
+
+    Frame ``i`` holds :math:`I_m^{(i)} = \mathrm{mod}(\lfloor \tau^{(i)} E \rfloor, 2^N)`.
+
+    Equal to ``torch.stack([capture_modulo(radiance, t, bits) for t in exposures], dim=1)`` for (B, C, H, W)
+    radiance, in one pass that validates the radiance once. The result is what
+    :func:`~torch_modulo.unwrap_multi` decodes.
+
+    Args:
+        radiance: non-negative radiance ``E``, (B, C, H, W) or (C, H, W).
+        exposures: ``tau`` > 0 per frame: (M,) shared by the batch, or (B, M) for (B, C, H, W) radiance; any
+            sequence or tensor.
+        bits: counter bit depth ``N``, 1 to 24 in float32 (53 in float64).
+        straight_through: gradients flow as if ``floor`` were the identity (see :func:`capture_modulo`).
+
+    Returns:
+        Modulus images, (B, M, C, H, W) for (B, C, H, W) radiance or (M, C, H, W) for (C, H, W), on the
+        radiance's device and dtype.
+
+    Raises:
+        TypeError: ``radiance`` is not a floating tensor, ``bits`` not an integer or ``straight_through`` not a bool.
+        ValueError: a bad shape, negative, NaN or infinite radiance, non-positive exposures, or more bits than
+            the dtype holds.
+
+    Warns:
+        UserWarning: the counts go beyond the integers the dtype holds exactly (see :func:`capture_modulo`).
+
+    Example:
+        >>> capture_stack(torch.tensor([[[[3.0, 40.0]]]]), [1.0, 8.0], bits=8)[0, :, 0, 0]
+        tensor([[ 3., 40.],
+                [24., 64.]])
+    """
+    check_floating(radiance, "radiance")
+    check_image_shape(radiance, "radiance", 3, 4)
+    bits = check_bits(bits, radiance.dtype)
+    straight_through = check_flag(straight_through, "straight_through")
+    unbatched = radiance.dim() == 3
+    x = radiance.unsqueeze(0) if unbatched else radiance
+    tau = _stack_exposures(exposure_tensor(exposures, radiance, "exposures"), x.shape[0], unbatched)
+    if validation_enabled():
+        _warn_inexact_counts(nonnegative_max(radiance, "radiance"), tau, radiance.dtype, stacklevel=3)
+    period = float(2**bits)
+    y = x.unsqueeze(1)
+    if _needs_grad(radiance, tau):
+        out = _counts_autograd(y * tau, period, straight_through, clip=False)
+    elif _compiling() or x.device.type != "cpu" or not x.is_contiguous():
+        out = _wrap(torch.floor(y * tau), period)
+    else:
+        out = _stack_tiled(x, tau, period)
+    return out[0] if unbatched else out
+
+
+class MultiExposureCapture(nn.Module):
+    """Module twin of :func:`capture_stack`: a noise-free modulo sensor taking one frame per exposure.
+
+    It returns an :class:`ExposureStack` of the moduli and the exposures, so that the decoder that follows needs
+    no second argument: ``nn.Sequential(MultiExposureCapture(taus, bits=8), MultiExposureUnwrap(bits=8))`` maps
+    radiance to radiance. The exposures are a buffer, so ``.to(device)`` moves them; the layer pickles, so it
+    works in ``DataLoader`` workers.
+
+    Args:
+        exposures: ``tau`` > 0 per frame, (M,): any sequence or tensor.
+        bits: counter bit depth ``N``.
+        straight_through: gradients flow as if ``floor`` were the identity (see :func:`capture_modulo`).
+
+    Shape:
+        - Input: (B, C, H, W) or (C, H, W) radiance.
+        - Output: :class:`ExposureStack` with moduli (B, M, C, H, W) or (M, C, H, W) and exposures (M,) in
+          float64 on the radiance's device.
+
+    Example:
+        >>> from torch_modulo import MultiExposureUnwrap
+        >>> radiance = torch.tensor([[[[0.25, 2.75, 70.5]]]])
+        >>> chain = nn.Sequential(MultiExposureCapture([1.0, 100.0, 10000.0], bits=8), MultiExposureUnwrap(bits=8))
+        >>> chain(radiance)
+        tensor([[[[ 0.2500,  2.7500, 70.5000]]]])
+    """
+
+    def __init__(
+        self,
+        exposures: list[float] | tuple[float, ...] | torch.Tensor,
+        bits: int = 8,
+        straight_through: bool = False,
+    ) -> None:
+        super().__init__()
+        self.bits = check_bits(bits, torch.float64)
+        self.straight_through = check_flag(straight_through, "straight_through")
+        tau = exposure_tensor(exposures, torch.empty((), dtype=torch.float64), "exposures")
+        if tau.dim() != 1 or not tau.numel():
+            raise ValueError(f"exposures must be a sequence or (M,) tensor with M >= 1; got shape {tuple(tau.shape)}")
+        self.register_buffer("exposures", tau, persistent=False)
+
+    def forward(self, radiance: torch.Tensor) -> ExposureStack:
+        moduli = capture_stack(radiance, self.exposures, self.bits, straight_through=self.straight_through)
+        return ExposureStack(moduli, self.exposures.to(radiance.device))
+
+    def extra_repr(self) -> str:
+        return f"exposures={self.exposures.tolist()}, bits={self.bits}, straight_through={self.straight_through}"

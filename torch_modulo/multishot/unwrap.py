@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from torch_modulo._checks import check_bits, check_choice, check_flag, check_modulus, check_real
+from torch_modulo._checks import check_bits, check_choice, check_flag, check_modulus, check_real, validation_enabled
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
 from torch_modulo.multishot.planning import safe_ratio
@@ -38,6 +38,46 @@ def _warn_unsafe(tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: Nois
     )
 
 
+def _count_traced(stack: torch.Tensor, tau: torch.Tensor, bits: int, method: str, return_counts: bool) -> torch.Tensor:
+    """The noise-free rules of :func:`~torch_modulo.multishot.counting.count_rollovers` in whole-tensor operations.
+
+    The path ``torch.compile`` traces: the same float64 arithmetic (so the same counts), without the CPU tiles or
+    data-dependent branches. With validation on, the moduli and ratios are still checked (breaking the graph).
+
+    Args:
+        stack: (B, M, C, H, W) moduli, exposures in any order.
+        tau: (B, M) float64 exposures.
+        bits: the bit depth ``N``.
+        method: ``"robust"`` or ``"paper"``.
+        return_counts: return the counts ``I^(M)`` instead of the radiance ``I^(M) / tau^(M)``.
+
+    Returns:
+        (B, C, H, W) in the stack's dtype.
+    """
+    b, m = stack.shape[:2]
+    tau, order = torch.sort(tau, dim=1, stable=True)
+    index = order.view(b, m, *([1] * (stack.dim() - 2))).expand_as(stack)
+    frames = torch.take_along_dim(stack.detach(), index, dim=1).reshape(b, m, -1)
+    if validation_enabled():
+        neighbour_ratios(tau, bits)
+        check_modulus(frames, bits, "moduli")
+    period = float(2**bits)
+    inv_p = 1.0 / period
+    work = torch.float64 if stack.device.type in ("cpu", "cuda") else stack.dtype
+    scale = (tau[:, 1:] / tau[:, :-1] * inv_p).to(work).unsqueeze(-1)  # (B, M-1, 1): r / P
+    acc = frames[:, 0].to(work)
+    for i in range(1, m):
+        m_i = frames[:, i]
+        if method == "robust":
+            acc = ((acc + 0.5) * scale[:, i - 1] - m_i * inv_p - 0.5 * inv_p).round().clamp_min(0.0)
+        else:
+            acc = (acc * scale[:, i - 1]).floor()
+        acc = m_i + acc * period
+    if not return_counts:
+        acc = acc / tau[:, -1:].to(work)
+    return acc.to(stack.dtype).view(b, *stack.shape[2:])
+
+
 def unwrap_multi(
     moduli: torch.Tensor,
     exposures: Sequence[float] | torch.Tensor,
@@ -63,7 +103,9 @@ def unwrap_multi(
 
     The noise-free work is vectorised over batch, exposures' pixels and channels; on the CPU it runs over cache-sized
     tiles of pixels with float64 arithmetic in place, so the decisions are exact for counts up to ``2**53``. The
-    result carries no gradient (rollover counts are discrete).
+    result carries no gradient (rollover counts are discrete). Under ``torch.compile`` the noise-free rules run as
+    whole-tensor operations with the same arithmetic, in one graph when :func:`torch_modulo.validation` is off;
+    the noise-aware decoder runs, but with graph breaks.
 
     Args:
         moduli: modulus images, (B, M, C, H, W) or (M, C, H, W), floating, integers in ``[0, 2**bits)``.
@@ -119,6 +161,9 @@ def unwrap_multi(
     if tau.requires_grad:
         tau = tau.detach()
     bits = check_bits(bits, moduli.dtype)
+    if noise is None and torch.compiler.is_compiling():
+        out = _count_traced(stack, tau, bits, method, return_counts)
+        return out[0] if unbatched else out
     stack, tau = sort_stack(stack, tau)
     ratios = neighbour_ratios(tau, bits)
     b, m = stack.shape[:2]
@@ -145,8 +190,28 @@ def unwrap_multi(
     return (radiance, variance) if return_variance else radiance
 
 
+def _split_stack(stack: object) -> tuple[torch.Tensor, torch.Tensor]:
+    """Moduli and exposures from an ExposureStack, a (moduli, exposures) pair or a FrameStack-like object."""
+    if isinstance(stack, tuple) and len(stack) == 2:
+        return stack[0], stack[1]
+    if hasattr(stack, "moduli") and hasattr(stack, "exposures"):
+        kind = getattr(stack, "kind", "modulo")
+        if kind != "modulo":
+            raise ValueError(f"MultiExposureUnwrap decodes modulo frames; got a stack of kind={kind!r}")
+        return stack.moduli, stack.exposures  # type: ignore[attr-defined]
+    raise TypeError(
+        "MultiExposureUnwrap needs the exposures: call it with (moduli, exposures), or with the ExposureStack that "
+        f"MultiExposureCapture returns or a FrameStack; got {type(stack).__name__} alone"
+    )
+
+
 class MultiExposureUnwrap(nn.Module):
     """Module twin of :func:`unwrap_multi` (Eqs. 6-7, and noise-aware decoding with ``noise``).
+
+    Call it with the moduli and their exposures, ``layer(moduli, exposures)``, or with one object that carries
+    both: the :class:`~torch_modulo.ExposureStack` that :class:`~torch_modulo.MultiExposureCapture` returns (so
+    the two chain in ``nn.Sequential``), any ``(moduli, exposures)`` tuple, or a
+    :class:`~torch_modulo.sensors.FrameStack` of modulo frames.
 
     Args:
         bits: the sensor's bit depth.
@@ -163,6 +228,10 @@ class MultiExposureUnwrap(nn.Module):
         >>> layer = MultiExposureUnwrap(bits=4)
         >>> layer(torch.tensor([[[[3.0]]], [[[4.0]]]]), torch.tensor([1.0, 16.0]))   # (M, C, H, W)
         tensor([[[3.2500]]])
+        >>> from torch_modulo import MultiExposureCapture
+        >>> chain = nn.Sequential(MultiExposureCapture([1.0, 16.0], bits=4), layer)
+        >>> chain(torch.tensor([[[[3.25]]]]))
+        tensor([[[[3.2500]]]])
     """
 
     def __init__(
@@ -183,7 +252,16 @@ class MultiExposureUnwrap(nn.Module):
         if self.noise is not None and method == "paper":
             raise ValueError("method='paper' takes no noise model")
 
-    def forward(self, moduli: torch.Tensor, exposures: Sequence[float] | torch.Tensor) -> torch.Tensor:
+    def forward(
+        self,
+        moduli: torch.Tensor | tuple[torch.Tensor, torch.Tensor],
+        exposures: Sequence[float] | torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        if exposures is None:
+            bits = getattr(moduli, "bits", self.bits)  # a FrameStack knows its bit depth
+            if bits != self.bits:
+                raise ValueError(f"the stack holds bits={bits} frames but this layer decodes bits={self.bits}")
+            moduli, exposures = _split_stack(moduli)
         return unwrap_multi(
             moduli,
             exposures,

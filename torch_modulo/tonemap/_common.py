@@ -2,7 +2,8 @@
 
 The tiled CPU path (no autograd, CPU tensor) reads the batch once for its statistics, then maps it tile by tile
 through cache-sized scratch buffers with in-place arithmetic and one write of the output; each operation on a
-tile runs on PyTorch's intra-op threads (see :mod:`torch_modulo._tiling`).
+tile runs on PyTorch's intra-op threads (see :mod:`torch_modulo._tiling`). Under ``torch.compile`` the operators
+take their whole-tensor path instead, which the compiler fuses.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from collections.abc import Callable
 import kornia
 import torch
 
-from torch_modulo._checks import check_floating, check_image_shape, check_nonnegative, check_real
+from torch_modulo._checks import check_floating, check_image_shape, check_nonnegative, check_real, validation_enabled
 from torch_modulo._tiling import CPU_TILE, column_tiles, tile_on_cpu
 
 __all__ = ["REC709_LUMA", "luminance"]
@@ -26,7 +27,10 @@ TILE = CPU_TILE // 2
 
 
 def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
-    """Validate an HDR image and return it as (B, C, H, W) with its original shape."""
+    """Validate an HDR image and return it as (B, C, H, W) with its original shape.
+
+    The value check (finite, non-negative) is skipped with :func:`torch_modulo.validation` off.
+    """
     check_floating(hdr, name)
     assert isinstance(hdr, torch.Tensor)
     check_image_shape(hdr, name, 2, 4)
@@ -40,7 +44,7 @@ def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
         raise ValueError(
             f"{name} must have 1 (grey) or 3 (linear Rec.709 RGB) channels; got {x.shape[1]} in shape {tuple(shape)}"
         )
-    if x.numel():
+    if validation_enabled() and x.numel():
         # One fused pass: NaN propagates through min/max, infinities show as extremes.
         lo, hi = torch.aminmax(x.detach())
         lo_f, hi_f = float(lo), float(hi)
@@ -54,8 +58,8 @@ def needs_grad(x: torch.Tensor) -> bool:
 
 
 def tiled(x: torch.Tensor) -> bool:
-    """Whether to take the in-place CPU path (no autograd, CPU tensor)."""
-    return tile_on_cpu(x)
+    """Whether to take the in-place CPU path (no autograd, CPU tensor, not traced by ``torch.compile``)."""
+    return tile_on_cpu(x) and not torch.compiler.is_compiling()
 
 
 def pixel_tiles(n: int, rows: int) -> list[slice]:

@@ -32,7 +32,8 @@ def _check_log_args(q: object, k: object, exposure: object) -> tuple[float, floa
     exposure_f = check_exposure_stops(exposure)
     for name, value in (("q", q_f), ("k", k_f)):
         scaled = value * 2.0**exposure_f
-        if not (math.isfinite(scaled) and scaled >= torch.finfo(torch.float64).tiny):
+        # A comparison rather than math.isfinite: torch.compile traces it on symbolic floats too (NaN fails it).
+        if not (abs(scaled) < math.inf and scaled >= torch.finfo(torch.float64).tiny):
             raise ValueError(
                 f"{name} * 2**exposure = {value} * 2**{exposure_f} is beyond float64's range; "
                 f"use a smaller |exposure| or a {name} nearer 1"
@@ -46,14 +47,46 @@ def _fits(dtype: torch.dtype, scale: float, top: float) -> bool:
     return info.tiny <= scale and scale * max(top, 1.0) <= info.max / 4
 
 
-def _log1p_scaled(y: torch.Tensor, scale: float) -> torch.Tensor:
+def _log1p_scaled(y: torch.Tensor, scale: float | torch.Tensor) -> torch.Tensor:
     """``log(1 + scale * y)`` for ``y > 0``; where ``scale * y`` overflows, ``log(y) + log(scale)``."""
     z = y * scale
     out = torch.log1p(z)
     overflow = torch.isinf(z)
+    if isinstance(scale, torch.Tensor):  # traced: no host sync
+        return torch.where(overflow, torch.log(y) + torch.log(scale).to(y.dtype), out)
     if bool(overflow.any()):
         out = torch.where(overflow, torch.log(y) + math.log(scale), out)
     return out
+
+
+def _log_map(src: torch.Tensor, qs: float | torch.Tensor, ks: float | torch.Tensor) -> torch.Tensor:
+    """Whole-tensor mapping of (B, C, H, W) ``src``: ``clip(src * log1p(qs Y) / (Y log1p(ks Ymax)), 0, 1)``."""
+    y = luminance(src)
+    denom = _log1p_scaled(y.amax(dim=(1, 2, 3)), ks)
+    denom = torch.where(denom > 0, denom, torch.ones_like(denom))
+    y = y.clamp_min(torch.finfo(src.dtype).tiny)
+    ratio = _log1p_scaled(y, qs) / y / img(denom)  # in this order: y * denom may underflow
+    return (src * ratio).clamp(0.0, 1.0)
+
+
+def _log_map_wide(src: torch.Tensor, qs: torch.Tensor, ks: torch.Tensor) -> torch.Tensor:
+    """:func:`_log_map` in float64, returned in ``src``'s dtype."""
+    return _log_map(src.double(), qs, ks).to(src.dtype)
+
+
+def _log_map_traced(x: torch.Tensor, qs: float, ks: float) -> torch.Tensor:
+    """:func:`_log_map` for ``torch.compile``: the float64 fallback chosen with ``torch.cond``, not a host sync.
+
+    The scales enter as float64 scalar tensors (a scalar tensor scales a float32 tensor in float32, as a Python
+    float does), so that ``torch.cond`` takes them as operands.
+    """
+    qs_t = torch.scalar_tensor(qs, dtype=torch.float64, device=x.device)
+    ks_t = torch.scalar_tensor(ks, dtype=torch.float64, device=x.device)
+    if not (_fits(x.dtype, qs, 1.0) and _fits(x.dtype, ks, 1.0)):
+        return _log_map_wide(x, qs_t, ks_t)
+    # _fits(dtype, s, top) for both scales, as a tensor: top * max(qs, ks) <= max / 4 in float64 (NaN fails).
+    fits = x.detach().amax().double() * torch.maximum(qs_t, ks_t) <= torch.finfo(x.dtype).max / 4
+    return torch.cond(fits, _log_map, _log_map_wide, (x, qs_t, ks_t))
 
 
 def tonemap_log(
@@ -115,17 +148,15 @@ def tonemap_log(
                 return ld.div_(y).mul_(inv_col)
 
             return restore(encode(map_tiled(x, kernel, 1), srgb), shape)
-    src = x
-    if x.dtype != torch.float64 and x.device.type != "mps":
+    if x.dtype == torch.float64 or x.device.type == "mps":
+        out = _log_map(x, qs, ks)
+    elif torch.compiler.is_compiling():
+        out = _log_map_traced(x, qs, ks)
+    else:
         top = float(x.detach().amax())  # bounds the luminance: its weights sum to 1
-        if not (_fits(x.dtype, qs, top) and _fits(x.dtype, ks, top)):
-            src = x.double()  # the scaled luminance leaves the input dtype's range: map in float64
-    y = luminance(src)
-    denom = _log1p_scaled(y.amax(dim=(1, 2, 3)), ks)
-    denom = torch.where(denom > 0, denom, torch.ones_like(denom))
-    y = y.clamp_min(torch.finfo(src.dtype).tiny)
-    ratio = _log1p_scaled(y, qs) / y / img(denom)  # in this order: y * denom may underflow
-    out = (src * ratio).clamp(0.0, 1.0).to(x.dtype)
+        fits = _fits(x.dtype, qs, top) and _fits(x.dtype, ks, top)
+        # Where the scaled luminance leaves the input dtype's range, map in float64.
+        out = _log_map(x, qs, ks) if fits else _log_map(x.double(), qs, ks).to(x.dtype)
     return restore(encode(out, srgb), shape)
 
 

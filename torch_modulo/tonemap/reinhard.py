@@ -99,7 +99,7 @@ def tonemap_reinhard(
 def _inverse_white_squared(white: float | None, scaled_max: torch.Tensor) -> torch.Tensor:
     """``1 / L_white²`` per image, 0 for an infinite white or an all-black image."""
     if white is not None:
-        return torch.full_like(scaled_max, 0.0 if math.isinf(white) else 1.0 / (white * white))
+        return torch.full_like(scaled_max, 0.0 if white == math.inf else 1.0 / (white * white))
     safe = torch.where(scaled_max > 0, scaled_max, torch.ones_like(scaled_max))
     return torch.where(scaled_max > 0, 1.0 / (safe * safe), torch.zeros_like(scaled_max))
 
