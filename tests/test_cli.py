@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import signal
 import subprocess
@@ -12,15 +13,16 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 
-from torch_modulo import capture_modulo, merge_intensity, unwrap_multi
+from torch_modulo import capture_modulo, merge_intensity, plan_exposures, unwrap_multi
 from torch_modulo.batch import MARKER_FOLDER
 from torch_modulo.cli import build_parser, main
 from torch_modulo.io import read_image, read_metadata, write_image
-from torch_modulo.sensors import FileSensor, FrameStack, write_frames
-from torch_modulo.tonemap import tonemap_clahe, tonemap_histogram, tonemap_reinhard
+from torch_modulo.sensors import FileSensor, FrameStack, NoiseModel, SimulatedModuloSensor, write_frames
+from torch_modulo.tonemap import tonemap_clahe, tonemap_gamma, tonemap_histogram, tonemap_reinhard
 
 ROOT = Path(__file__).resolve().parent.parent
 TAUS = [1.0, 256.0, 65536.0]
@@ -85,7 +87,8 @@ class TestSimulate:
     def test_end_to_end(self, scenes: Path, tmp_path: Path) -> None:
         before = _digest(scenes)
         out = tmp_path / "stacks"
-        assert _cli("simulate", scenes, out, "--bits", 8, "--exposures", "1,256,65536", "--workers", 1) == 0
+        args = ("--bits", 8, "--exposures", "1,256,65536", "--noise", "none", "--workers", 1)
+        assert _cli("simulate", scenes, out, *args) == 0
         assert _digest(scenes) == before
         report = _report(out, "simulate")
         assert _names(report["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
@@ -137,6 +140,8 @@ class TestSimulate:
                 "--no-truth",
                 "--scale",
                 2.5,
+                "--noise",
+                "none",
             )
             == 0
         )
@@ -156,7 +161,7 @@ class TestSimulate:
         write_image(tmp_path / "in" / "rgba.exr", torch.cat([rgb, torch.ones(1, 12, 16)]))
         write_image(tmp_path / "in" / "views.exr", torch.cat([rgb, _scene(6), _scene(7)]))  # like a multi-view EXR
         write_image(tmp_path / "in" / "ya.exr", torch.cat([rgb[:1], torch.ones(1, 12, 16)]))
-        assert _cli("simulate", tmp_path / "in", tmp_path / "out", "--exposures", "1,16") == 0
+        assert _cli("simulate", tmp_path / "in", tmp_path / "out", "--exposures", "1,16", "--noise", "none") == 0
         for name, channels in (("rgba", 3), ("views", 3), ("ya", 1)):
             stack = FileSensor(tmp_path / "out" / name, dtype=torch.float64).read()
             assert stack.moduli.shape == (1, 2, channels, 12, 16)
@@ -171,7 +176,7 @@ class TestSimulate:
 class TestUnwrap:
     def test_multi_shot_end_to_end(self, scenes: Path, tmp_path: Path) -> None:
         stacks, radiance = tmp_path / "stacks", tmp_path / "radiance"
-        assert _cli("simulate", scenes, stacks) == 0
+        assert _cli("simulate", scenes, stacks, "--noise", "none", "--exposures", "1,256,65536") == 0
         before = _digest(stacks)
         assert _cli("unwrap", stacks, radiance, "--workers", 2) == 0
         assert _digest(stacks) == before
@@ -263,7 +268,7 @@ class TestTonemap:
     def test_end_to_end(self, scenes: Path, tmp_path: Path) -> None:
         before = _digest(scenes)
         out = tmp_path / "png"
-        assert _cli("tonemap", scenes, out, "--workers", 2) == 0
+        assert _cli("tonemap", scenes, out, "--workers", 2, "--no-srgb") == 0
         assert _digest(scenes) == before
         for name in ("a.exr", "b.hdr", "sub/c.exr"):
             png = read_image(out / Path(name).with_suffix(".png"))
@@ -283,7 +288,7 @@ class TestTonemap:
 
     def test_tuple_parameter(self, scenes: Path, tmp_path: Path) -> None:
         out = tmp_path / "png"
-        assert _cli("tonemap", scenes / "a.exr", out, "--op", "clahe", "--param", "grid_size=2,2") == 0
+        assert _cli("tonemap", scenes / "a.exr", out, "--op", "clahe", "--param", "grid_size=2,2", "--no-srgb") == 0
         expected = torch.round(tonemap_clahe(read_image(scenes / "a.exr"), grid_size=(2, 2)) * 255)
         assert torch.equal(read_image(out / "a.png"), expected)
 
@@ -310,7 +315,7 @@ class TestFolderPromises:
 
     def test_rerun_after_a_partial_run(self, scenes: Path, tmp_path: Path) -> None:
         out = tmp_path / "stacks"
-        assert _cli("simulate", scenes, out) == 0
+        assert _cli("simulate", scenes, out, "--exposures", "1,256,65536") == 0
         kept = (out / "b" / "frame_b000_m00.exr").stat().st_mtime_ns
         # a crash: one scene's output never renamed into place (a hidden temporary is all that is left), another
         # finished without its done marker
@@ -318,14 +323,14 @@ class TestFolderPromises:
 
         shutil.move(out / "a", out / ".a.tmp-999-dead")
         (out / MARKER_FOLDER / "simulate" / "sub" / "c.exr.json").unlink()
-        assert _cli("simulate", scenes, out) == 0
+        assert _cli("simulate", scenes, out, "--exposures", "1,256,65536") == 0
         report = _report(out, "simulate")
         assert _names(report["done"]) == ["a.exr", "sub/c.exr"]
         assert _names(report["skipped"]) == ["b.hdr"]
         assert (out / "b" / "frame_b000_m00.exr").stat().st_mtime_ns == kept
         assert FileSensor(out / "a").read().num_exposures == 3
         # the same command with another option redoes everything
-        assert _cli("simulate", scenes, out, "--seed", 9, "--noise", "default") == 0
+        assert _cli("simulate", scenes, out, "--exposures", "1,256,65536", "--seed", 9, "--noise", "default") == 0
         assert len(_report(out, "simulate")["done"]) == 3
 
     def test_no_inputs(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -482,6 +487,205 @@ class TestFolderPromises:
         assert merged["parts"] == [0, 1] and _names(merged["done"]) == ["a.exr", "b.hdr", "sub/c.exr"]
 
 
+# ------------------------------------------------------------------------------------ defaults under noise
+
+
+def _rough_scenes(folder: Path, count: int = 3) -> Path:
+    """``count`` 64x64 RGB scenes of about 16 stops (the README's folder example, small)."""
+    folder.mkdir(parents=True)
+    for i in range(count):
+        write_image(folder / f"s{i}.exr", _scene(10 + i, 64, 64))
+    return folder
+
+
+def _relative_errors(estimate: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    mask = truth > 0
+    return (estimate[mask] - truth[mask]).abs() / truth[mask]
+
+
+class TestNoiseDefaults:
+    def test_readme_folder_example_is_right_with_noise(
+        self, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    ) -> None:
+        """`torch-modulo simulate hdr_scenes/ stacks/` then `torch-modulo unwrap stacks/ radiance/`, defaults."""
+        scenes = _rough_scenes(tmp_path / "hdr_scenes")
+        stacks, radiance = tmp_path / "stacks", tmp_path / "radiance"
+        assert _cli("simulate", scenes, stacks, "--workers", 1) == 0
+        assert _cli("unwrap", stacks, radiance, "--workers", 1) == 0
+        err = capsys.readouterr().err
+        assert "warning" not in err and "unsafe" not in err  # the planned exposures are safe
+        assert "against the stored truth, mean over 3 results: median relative error" in err
+        report = _report(radiance, "unwrap")
+        for i in range(3):
+            stack = FileSensor(stacks / f"s{i}").read()
+            assert stack.num_exposures > 3  # noise needs more, closer exposures than the noise-free three
+            truth = read_image(stacks / f"s{i}" / "radiance.exr", dtype=torch.float64)
+            restored, meta = read_image(radiance / f"s{i}.exr", with_metadata=True, dtype=torch.float64)
+            rel = _relative_errors(restored, truth)
+            assert float(rel.median()) < 0.05
+            assert float((rel > 0.5).double().mean()) < 0.005
+            assert meta["noise"] == NoiseModel.preset("photon-counting").to_dict()
+            entry = report["done"][i]
+            assert entry["noise"] == "photon-counting" and "warnings" not in entry
+            assert entry["accuracy"]["median_relative_error"] == pytest.approx(float(rel.median()), rel=1e-3)
+
+    def test_simulate_agrees_with_the_python_sensor(self, tmp_path: Path) -> None:
+        scenes = _rough_scenes(tmp_path / "in", count=1)
+        assert _cli("simulate", scenes, tmp_path / "out", "--workers", 1) == 0
+        stack = FileSensor(tmp_path / "out" / "s0").read()
+        assert stack.metadata["noise"] == SimulatedModuloSensor().noise.to_dict()  # noise on, the same preset
+        # --exposures auto: protocol N's scaling and plan for the scene's own stops, the longest exposure 1
+        image = read_image(scenes / "s0.exr", dtype=torch.float64)
+        low = float(torch.quantile(image[image > 0], 0.001))
+        stops = math.ceil(math.log2(float(image.max()) / low) + 4)
+        plan = plan_exposures(stops, 8, noise=SimulatedModuloSensor().noise)
+        assert stack.exposures.tolist() == pytest.approx([t / plan[-1] for t in plan], rel=1e-12)
+        assert stack.metadata["stops"] == stops and stack.metadata["radiance_scale"] == pytest.approx(16 / low)
+        # the same frames as the Python sensor with the scene's seed
+        truth = read_image(tmp_path / "out" / "s0" / "radiance.exr", dtype=torch.float64)
+        python = SimulatedModuloSensor(seed=stack.metadata["seed"])(truth[None], stack.exposures.tolist())
+        assert torch.equal(stack.moduli, python.moduli.float())
+
+    def test_noise_none_plans_the_noise_free_exposures(self, tmp_path: Path) -> None:
+        scenes = _rough_scenes(tmp_path / "in", count=1)
+        assert _cli("simulate", scenes, tmp_path / "stacks", "--noise", "none") == 0
+        assert _cli("unwrap", tmp_path / "stacks", tmp_path / "out") == 0
+        stack = FileSensor(tmp_path / "stacks" / "s0").read()
+        plan = plan_exposures(stack.metadata["stops"], 8)
+        assert stack.metadata["noise"] is None and stack.num_exposures == len(plan) == 3
+        truth = read_image(tmp_path / "stacks" / "s0" / "radiance.exr", dtype=torch.float64)
+        assert float(truth.max()) * float(stack.exposures[0]) < 256  # the shortest frame does not roll over
+        restored = read_image(tmp_path / "out" / "s0.exr", dtype=torch.float64)
+        torch.testing.assert_close(restored, torch.floor(truth), rtol=2**-23, atol=0)  # exact: tau_max = 1
+
+    @pytest.mark.parametrize(
+        ("value", "expected"),
+        [
+            ("photon-counting", NoiseModel.preset("photon-counting")),
+            ("q16", NoiseModel.preset("q16")),
+            ("dfpa", NoiseModel.preset("dfpa")),
+            ("default", NoiseModel()),
+            ("read=2,prnu=0.01", NoiseModel(read_noise=2.0, prnu=0.01)),
+            ("q16,read=20", NoiseModel(electrons_per_count=16.0, read_noise=20.0)),
+            ("none", None),
+        ],
+    )
+    def test_noise_values(self, value: str, expected: NoiseModel | None) -> None:
+        parsed = build_parser().parse_args(["simulate", "i", "o", "--noise", value]).noise
+        assert parsed == ("none" if expected is None else expected.to_dict())
+
+    def test_presets_reach_the_stack_and_the_decoder(self, tmp_path: Path) -> None:
+        scenes = _rough_scenes(tmp_path / "in", count=1)
+        assert _cli("simulate", scenes, tmp_path / "stacks", "--noise", "dfpa") == 0
+        stack = FileSensor(tmp_path / "stacks" / "s0").read()
+        dfpa = NoiseModel.preset("dfpa")
+        assert stack.metadata["noise"] == dfpa.to_dict()
+        plan = plan_exposures(stack.metadata["stops"], 8, noise=dfpa)
+        assert stack.exposures.tolist() == pytest.approx([t / plan[-1] for t in plan], rel=1e-12)
+        out = tmp_path / "out"
+        for name, option in (("dfpa", ()), ("none", ("--noise", "none")), ("q16", ("--noise", "q16"))):
+            assert _cli("unwrap", tmp_path / "stacks", out / name, *option) == 0
+        moduli, taus = stack.moduli, stack.exposures
+        expected = {
+            "dfpa": unwrap_multi(moduli, taus, 8, noise=dfpa),  # by default, the model the stack records
+            "none": unwrap_multi(moduli, taus, 8),  # forced noise-free
+        }
+        with pytest.warns(UserWarning, match="is unsafe under"):  # q16 needs closer exposures than the dfpa plan
+            expected["q16"] = unwrap_multi(moduli, taus, 8, noise="q16")  # overridden
+        for name, radiance in expected.items():
+            restored, meta = read_image(out / name / "s0.exr", with_metadata=True)
+            assert torch.equal(restored, radiance[0]), name
+            model = None if name == "none" else NoiseModel.preset(name)
+            assert meta["noise"] == (model.to_dict() if model else None)
+            assert _report(out / name, "unwrap")["done"][0]["noise"] == (name if model else None)
+
+    def test_unsafe_exposures_warn_and_name_a_plan(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        scenes = _rough_scenes(tmp_path / "in", count=1)
+        assert _cli("simulate", scenes, tmp_path / "stacks", "--exposures", "1,256,65536") == 0  # accepted
+        err = capsys.readouterr().err
+        assert "simulate: s0.exr: exposure ratio 256 is unsafe under NoiseModel(" in err
+        assert "keep ratios <= " in err and "e.g. --exposures auto (for this scene plan_exposures(" in err
+        assert "is unsafe" in _report(tmp_path / "stacks", "simulate")["done"][0]["warnings"][0]
+        truth = read_image(tmp_path / "stacks" / "s0" / "radiance.exr", dtype=torch.float64)
+        noise = NoiseModel()
+        bright = float(truth.max())  # the brightest value stays three deviations below the rollover at tau = 1
+        assert 200 < bright and bright + 3 * math.sqrt(noise.count_variance(bright)) == pytest.approx(255, abs=1e-3)
+        assert _cli("unwrap", tmp_path / "stacks", tmp_path / "out") == 0
+        err = capsys.readouterr().err
+        assert "unwrap: s0: exposure ratio 256 is unsafe under NoiseModel(" in err and "plan_exposures(" in err
+        assert "is unsafe" in _report(tmp_path / "out", "unwrap")["done"][0]["warnings"][0]
+        # Eqs. 6-7 as printed take no noise model: the recorded one is not used, and the report says so
+        assert _cli("unwrap", tmp_path / "stacks", tmp_path / "paper", "--method", "paper") == 0
+        entry = _report(tmp_path / "paper", "unwrap")["done"][0]
+        assert entry["noise"] is None and "--method paper" in entry["warnings"][0]
+        stack = FileSensor(tmp_path / "stacks" / "s0").read()
+        expected = unwrap_multi(stack.moduli, stack.exposures, 8, method="paper")[0]
+        assert torch.equal(read_image(tmp_path / "paper" / "s0.exr"), expected)
+
+
+# -------------------------------------------------------------------------------------- single shot stacks
+
+
+def _smooth_scene(path: Path) -> Path:
+    """A smooth 40x96 RGB scene (a ramp and a bump): at 16 periods its steps stay under half a period."""
+    y, x = torch.meshgrid(torch.linspace(-1, 1, 40), torch.linspace(-1, 1, 96), indexing="ij")
+    base = 0.01 + (x + 1) / 2 + 0.2 * torch.exp(-(x**2 + y**2) * 4)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_image(path, torch.stack([base, 0.8 * base, 0.6 * base]))
+    return path
+
+
+class TestSingleShotStacks:
+    def test_simulate_then_unwrap_single(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        source = _smooth_scene(tmp_path / "in" / "smooth.exr")
+        stacks, out = tmp_path / "single", tmp_path / "out"
+        assert _cli("simulate", source.parent, stacks, "--exposures", 2, "--noise", "none") == 0
+        stack = FileSensor(stacks / "smooth").read()
+        assert stack.num_exposures == 1 and stack.metadata["scaling"] == "single shot (protocol A)"
+        truth = read_image(stacks / "smooth" / "radiance.exr", dtype=torch.float64)
+        luminance = 0.2126 * truth[0] + 0.7152 * truth[1] + 0.0722 * truth[2]
+        p999 = float(np.percentile(luminance.numpy(), 99.9))
+        assert p999 * 2 == pytest.approx(4095, rel=1e-6)  # 16 periods at the exposure: the frame wraps
+        assert float((truth * 2).max()) > 4 * 256
+        capsys.readouterr()
+        assert _cli("unwrap", stacks, out, "--single", "--confidence") == 0  # radiance.exr is not taken as a frame
+        report = _report(out, "unwrap")
+        assert _names(report["done"]) == ["smooth"] and not report["failed"]
+        assert report["done"][0]["accuracy"] == {"exact_k": 1.0, "psnr_db": math.inf}
+        assert "exact rollover counts 100.00%, PSNR inf dB" in capsys.readouterr().err
+        restored, meta = read_image(out / "smooth.exr", with_metadata=True, dtype=torch.float64)
+        torch.testing.assert_close(restored, torch.floor(truth * 2) / 2)
+        assert meta["exposure"] == 2.0 and meta["bits"] == 8
+        assert (out / "smooth.confidence.exr").is_file()
+
+    def test_single_shot_scores_noisy_frames_by_their_nearest_counts(self, tmp_path: Path) -> None:
+        source = _smooth_scene(tmp_path / "in" / "smooth.exr")
+        assert _cli("simulate", source.parent, tmp_path / "single", "--exposures", 1, "--noise", "q16") == 0
+        assert _cli("unwrap", tmp_path / "single", tmp_path / "out", "--single") == 0
+        accuracy = _report(tmp_path / "out", "unwrap")["done"][0]["accuracy"]
+        assert accuracy["exact_k"] > 0.99 and accuracy["psnr_db"] > 40
+
+    def test_single_refuses_a_stack_of_several_exposures(self, tmp_path: Path) -> None:
+        source = _smooth_scene(tmp_path / "in" / "smooth.exr")
+        assert _cli("simulate", source.parent, tmp_path / "stacks", "--exposures", "1,16", "--noise", "none") == 0
+        assert _cli("unwrap", tmp_path / "stacks", tmp_path / "out", "--single") == 1
+        error = _report(tmp_path / "out", "unwrap")["failed"][0]["error"]
+        assert "holds 2 modulo frames; --single unwraps one modulo frame" in error and "--exposures 1" in error
+
+
+class TestTonemapEncoding:
+    def test_pngs_are_srgb_encoded_by_default(self, scenes: Path, tmp_path: Path) -> None:
+        hdr = read_image(scenes / "a.exr")
+        assert _cli("tonemap", scenes / "a.exr", tmp_path / "default") == 0
+        png, meta = read_image(tmp_path / "default" / "a.png", with_metadata=True)
+        assert torch.equal(png, torch.round(tonemap_histogram(hdr, srgb=True) * 255)) and meta["srgb"] is True
+        assert _cli("tonemap", scenes / "a.exr", tmp_path / "linear", "--no-srgb") == 0
+        assert torch.equal(read_image(tmp_path / "linear" / "a.png"), torch.round(tonemap_histogram(hdr) * 255))
+        # gamma's own gamma (2.2 by default) encodes for display: no sRGB on top unless asked
+        assert _cli("tonemap", scenes / "a.exr", tmp_path / "gamma", "--op", "gamma") == 0
+        assert torch.equal(read_image(tmp_path / "gamma" / "a.png"), torch.round(tonemap_gamma(hdr) * 255))
+
+
 # ----------------------------------------------------------------------------------------------- reliability
 
 
@@ -513,12 +717,14 @@ class TestReliability:
         expected = load_radiance(source)
         assert bool(torch.isfinite(expected).all()) and float(expected.min()) >= 0
         assert torch.equal(HDRFolder(tmp_path / "in", channels=None)[0], expected)  # the Dataset reads the same
-        assert _cli("tonemap", tmp_path / "in", tmp_path / "png") == 0
+        assert _cli("tonemap", tmp_path / "in", tmp_path / "png", "--no-srgb") == 0
         assert torch.equal(read_image(tmp_path / "png" / "bad.png"), torch.round(tonemap_histogram(expected) * 255))
         done = _report(tmp_path / "png", "tonemap")["done"][0]
         assert done["nonfinite_replaced"] == {"nan": 1, "posinf": 1, "neginf": 0}
         assert done["warnings"][0].startswith("replaced 2 NaN or infinite values (1 NaN, 1 +Inf, 0 -Inf)")
-        assert _cli("simulate", tmp_path / "in", tmp_path / "stacks") == 0
+        assert (
+            _cli("simulate", tmp_path / "in", tmp_path / "stacks", "--noise", "none", "--exposures", "1,256,65536") == 0
+        )
         truth = read_image(tmp_path / "stacks" / "bad" / "radiance.exr", dtype=torch.float64)
         torch.testing.assert_close(truth, (expected.double() * (255 / float(expected.max()))).float().double())
         assert _report(tmp_path / "stacks", "simulate")["done"][0]["negatives_clamped"] == 1
@@ -580,6 +786,12 @@ BAD_OPTIONS = [
     (["unwrap", "{in}", "{out}", "--single", "--method", "robust"], "--method must be one of"),
     (["tonemap", "{in}", "{out}", "--nonfinite", "zero"], "invalid choice: 'zero'"),
     (["simulate", "{in}", "{out}", "--merge-timeout", "0"], "expected a finite number > 0; got '0'"),
+    (["simulate", "{in}", "{out}", "--noise", "loud"], "a preset (photon-counting, q16, dfpa)"),
+    (["simulate", "{in}", "{out}", "--noise", "q16,q=0"], "electrons_per_count must be > 0"),
+    (["simulate", "{in}", "{out}", "--exposures", "auto,2"], "exposure 'auto' in 'auto,2' is not a number"),
+    (["unwrap", "{in}", "{out}", "--method", "paper", "--noise", "q16"], "--method paper decodes Eqs. 6-7 as printed"),
+    (["unwrap", "{in}", "{out}", "--single", "--noise", "q16"], "--noise applies to multi shot only"),
+    (["tonemap", "{in}", "{out}", "--srgb", "--no-srgb", "--depth", "12"], "invalid choice: 12"),
 ]
 
 

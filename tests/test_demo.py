@@ -64,3 +64,31 @@ def test_demo_reads_grey_and_damaged_scenes_like_the_command_line(tmp_path: Path
     assert any("replaced 2 NaN or infinite values" in line for line in lines)
     assert io.read_image(tmp_path / "out" / "multi_shot.exr").shape == (3, 12, 20)  # grey read as RGB
     assert summary["multi_shot"]["exact_k"] == 1.0
+
+
+def test_every_png_shows_something_of_its_own(tmp_path: Path) -> None:
+    """No two PNGs of the demo are the same picture (modulus_tonemapped.png was modulus.png again)."""
+    from torch_modulo.singleshot import unwrap_single
+
+    summary = run_demo(tmp_path / "out", _scene(tmp_path / "scene.exr"), workers=1, log=lambda _: None)
+    pngs = sorted(Path(name) for name in summary["files"] if name.endswith(".png"))
+    assert not (tmp_path / "out" / "modulus_tonemapped.png").exists()
+    assert [p.name for p in pngs] == [
+        "comparison.png",
+        "intensity_merge_tonemapped.png",
+        "intensity_tonemapped.png",
+        "modulus.png",
+        "multi_shot_tonemapped.png",
+        "single_shot_tonemapped.png",
+        "truth_tonemapped.png",
+    ]
+    images = {p.name: io.read_image(p) for p in pngs}
+    for a in images:
+        for b in images:
+            if a < b and images[a].shape == images[b].shape:
+                assert not torch.equal(images[a], images[b]), (a, b)
+    # modulus.png is a camera frame: its values are the 8-bit modulus, its metadata says how to unwrap it
+    modulus, meta = io.read_image(tmp_path / "out" / "modulus.png", with_metadata=True)
+    assert meta["bits"] == 8 and meta["exposure"] == 1.0 and float(modulus.max()) <= 255
+    restored = io.read_image(tmp_path / "out" / "single_shot.exr")
+    assert torch.equal(unwrap_single(modulus[None], 8)[0], restored)

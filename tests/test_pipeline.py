@@ -3,6 +3,7 @@ of the folder commands, what a task weighs, and the jobs as Python functions."""
 
 from __future__ import annotations
 
+import math
 import pickle
 from pathlib import Path
 
@@ -12,10 +13,14 @@ import torch
 from torch_modulo import pipeline
 from torch_modulo.batch import Task
 from torch_modulo.io import read_image, write_image
+from torch_modulo.multishot import plan_exposures
+from torch_modulo.noise import NoiseModel
 from torch_modulo.pipeline import (
     count_values,
+    fit_scale,
     folder_tasks,
     load_radiance,
+    plan_scene,
     scene_seed,
     simulate_job,
     tonemap_job,
@@ -130,9 +135,12 @@ class TestTasks:
         assert wanted.startswith("radiance files (.exr")
         tasks, _ = folder_tasks("simulate", source, out)
         assert [t.outputs for t in tasks] == [(str(out / "a"),), (str(out / "sub" / "b"),)]
-        tasks, _ = folder_tasks("unwrap", source, out, single=True, confidence=True)
-        assert [t.name for t in tasks] == ["a.exr", "m.png"]
+        tasks, wanted = folder_tasks("unwrap", source, out, single=True, confidence=True)
+        # single shot: modulus images and frame stacks (as simulate writes single-shot stacks), not the files inside
+        assert [t.name for t in tasks] == ["a.exr", "m.png", "stack"]
         assert tasks[1].outputs == (str(out / "m.exr"), str(out / "m.confidence.exr"))
+        assert tasks[2].outputs == (str(out / "stack.exr"), str(out / "stack.confidence.exr"))
+        assert wanted.startswith("frame stacks or modulus images (")
         tasks, wanted = folder_tasks("unwrap", source, out)
         assert [(t.name, t.outputs) for t in tasks] == [("stack", (str(out / "stack.exr"),))]
         assert wanted == "frame stacks (folders with a frames.json manifest)"
@@ -201,6 +209,58 @@ class TestJobs:
             tonemap_options("log", {}, srgb="no")  # type: ignore[arg-type]
         with pytest.raises(ValueError, match="depth must be one of 16, 8; got 12"):
             tonemap_options("log", {}, depth=12)
+
+
+class TestScaling:
+    def test_plan_scene_is_protocol_n(self) -> None:
+        g = torch.Generator().manual_seed(0)
+        image = torch.exp2(torch.rand(3, 32, 32, generator=g, dtype=torch.float64) * 14 - 3)
+        low = float(torch.quantile(image.flatten(), 0.001))
+        stops = math.ceil(math.log2(float(image.max()) / low) + 4)
+        for noise in (None, NoiseModel(), "q16"):
+            taus, scale, got_stops = plan_scene(image, 8, noise)
+            plan = plan_exposures(stops, 8, noise=noise)
+            assert got_stops == stops and scale == pytest.approx(16 / low)
+            assert taus == pytest.approx([t / plan[-1] for t in plan], rel=1e-12) and taus[-1] == 1.0
+            # a given scale moves the exposures instead: the same counts
+            moved, same, _ = plan_scene(image, 8, noise, scale=2.0)
+            assert same == 2.0 and moved == pytest.approx([t * scale / 2.0 for t in taus], rel=1e-12)
+
+    def test_plan_scene_keeps_the_brightest_value_off_the_rollover(self) -> None:
+        image = torch.ones(1, 40, 50, dtype=torch.float64)
+        image[0, 0, 0] = 4096.0  # max / p = 2^12 exactly: the noise-free plan for 16 stops reads 256 at the shortest
+        taus, scale, stops = plan_scene(image, 8)
+        assert stops == 17 and float(image.max()) * scale * taus[0] < 256
+
+    def test_fit_scale(self) -> None:
+        image = torch.rand(3, 20, 30, dtype=torch.float64) + 0.5
+        assert fit_scale(image, 8, [2.0, 32.0]) * float(image.max()) * 2.0 == pytest.approx(255)
+        noisy = fit_scale(image, 8, [2.0, 32.0], "photon-counting") * float(image.max()) * 2.0
+        assert noisy + 3 * math.sqrt(NoiseModel().count_variance(noisy)) == pytest.approx(255)
+        # one exposure: protocol A's percentile at 16 periods, of luminance (RGB) or of all values (grey)
+        y = 0.2126 * image[0] + 0.7152 * image[1] + 0.0722 * image[2]
+        assert fit_scale(image, 8, [4.0]) == pytest.approx(4095 / (float(torch.quantile(y.flatten(), 0.999)) * 4))
+        grey = image[:1]
+        assert fit_scale(grey, 10, [1.0]) == pytest.approx(16383 / float(torch.quantile(grey.flatten(), 0.999)))
+        with pytest.raises(ValueError, match="black"):
+            fit_scale(torch.zeros(1, 2, 2), 8, [1.0])
+        with pytest.raises(ValueError, match="black"):
+            plan_scene(torch.zeros(1, 2, 2), 8)
+
+    def test_jobs_plan_and_decode_with_noise(self, tmp_path: Path) -> None:
+        g = torch.Generator().manual_seed(1)
+        source = _write(tmp_path / "s.exr", torch.exp2(torch.rand(3, 16, 16, generator=g) * 12))
+        options = {"bits": 8, "exposures": "auto", "noise": "q16", "seed": 0, "scale": "auto"}
+        info = simulate_job(
+            Task("s.exr", str(source), (str(tmp_path / "stack"),)), {**options, "format": "exr", "truth": True}
+        )
+        assert info["noise"] == "q16" and info["stops"] >= 12 and "warnings" not in info
+        stack = FileSensor(tmp_path / "stack").read()
+        assert stack.metadata["noise"] == NoiseModel.preset("q16").to_dict()
+        unwrap_options = {"single": False, "bits": None, "exposure": None, "method": "robust", "solver": None}
+        info = unwrap_job(Task("stack", str(tmp_path / "stack"), (str(tmp_path / "r.exr"),)), unwrap_options)
+        assert info["noise"] == "q16" and info["accuracy"]["gross_share"] == 0.0  # the stack's model, by default
+        assert info["accuracy"]["median_relative_error"] < 0.05
 
 
 def test_every_radiance_reader_shares_load_radiance() -> None:

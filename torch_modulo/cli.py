@@ -1,10 +1,11 @@
 """The ``torch-modulo`` command line: parse, call the library, report.
 
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
-    torch-modulo simulate IN OUT [--bits 8] [--exposures 1,256,65536] [--noise ...] [--seed N]
+    torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N]
                                                     every HDR file in IN -> a modulo frame stack per scene in OUT
-    torch-modulo unwrap IN OUT [--single]           frame stacks (or single modulus images) -> radiance EXRs
-    torch-modulo tonemap IN OUT [--op histogram]    radiance files -> PNGs
+    torch-modulo unwrap IN OUT [--single] [--noise stack]
+                                                    frame stacks (or single modulus images) -> radiance EXRs
+    torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs
 
 The per-file work lives in :mod:`torch_modulo.pipeline` and the folder commands share one engine
 (:mod:`torch_modulo.batch`): a progress bar, ``--workers N`` processes, inputs never written, atomic outputs,
@@ -25,7 +26,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from torch_modulo.pipeline import NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
+from torch_modulo.pipeline import DEFAULT_NOISE, NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
 
 # The jobs live in torch_modulo.pipeline; they stay importable from here.
 __all__ = ["build_parser", "main", "simulate_job", "tonemap_job", "unwrap_job"]
@@ -91,11 +92,15 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _exposures(text: str) -> list[float]:
-    """``"1,256,65536"`` -> [1.0, 256.0, 65536.0]: one or more finite exposures > 0."""
+def _exposures(text: str) -> list[float] | str:
+    """``"auto"``, or ``"1,256,65536"`` -> [1.0, 256.0, 65536.0]: one or more finite exposures > 0."""
+    if text.strip() == "auto":
+        return "auto"
     parts = [p.strip() for p in text.split(",")]
     if not text.strip() or any(not p for p in parts):
-        raise argparse.ArgumentTypeError(f"expected comma-separated exposures such as 1,256,65536; got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated exposures such as 1,256,65536, or auto; got {text!r}"
+        )
     values = []
     for part in parts:
         try:
@@ -126,29 +131,40 @@ def _flag_value(text: str, where: str) -> bool:
     raise argparse.ArgumentTypeError(f"{where} must be on or off; got {text!r}")
 
 
-def _noise(text: str) -> dict[str, Any] | None:
-    """``none``, ``default`` or ``read=2,q=1,dark=0,prnu=0.01,shot=on`` -> NoiseModel fields (validated)."""
-    if text == "none":
-        return None
-    fields: dict[str, Any] = {}
-    if text != "default":
-        for item in text.split(","):
-            key, sep, value = item.partition("=")
-            key = key.strip()
-            if not sep or key not in _NOISE_KEYS:
-                raise argparse.ArgumentTypeError(
-                    f"expected none, default or KEY=VALUE pairs with keys q, read, dark, prnu, shot; got {item!r}"
-                )
-            name = _NOISE_KEYS[key]
-            if name == "shot_noise":
-                fields[name] = _flag_value(value.strip(), "shot")
-            else:
-                try:
-                    fields[name] = float(value)
-                except ValueError:
-                    raise argparse.ArgumentTypeError(f"noise {key}={value!r} is not a number") from None
-    from torch_modulo.sensors import NoiseModel
+def _noise(text: str) -> dict[str, Any] | str:
+    """A ``--noise`` value -> NoiseModel fields (validated), or ``"none"``.
 
+    ``none``; ``default`` (the photon-counting preset); a preset name; or KEY=VALUE pairs (``read=2,prnu=0.01``),
+    optionally after a preset name (``q16,read=20``) whose fields they change (else the photon-counting preset's).
+    """
+    from torch_modulo.noise import PRESETS, NoiseModel
+
+    text = text.strip()
+    if text == "none":
+        return "none"
+    items = [item.strip() for item in text.split(",")]
+    base = DEFAULT_NOISE if items[0] == "default" else items[0]
+    if items[0] == "default" or base in PRESETS:
+        items = items[1:]
+    else:
+        base = DEFAULT_NOISE
+    fields: dict[str, Any] = dict(PRESETS[base])
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or key not in _NOISE_KEYS:
+            raise argparse.ArgumentTypeError(
+                f"expected none, default, a preset ({', '.join(PRESETS)}) or KEY=VALUE pairs with keys q, read, "
+                f"dark, prnu, shot; got {item!r}"
+            )
+        name = _NOISE_KEYS[key]
+        if name == "shot_noise":
+            fields[name] = _flag_value(value.strip(), "shot")
+        else:
+            try:
+                fields[name] = float(value)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"noise {key}={value!r} is not a number") from None
     try:
         return NoiseModel(**fields).to_dict()
     except (TypeError, ValueError) as error:
@@ -176,13 +192,6 @@ def _param(text: str) -> tuple[str, Any]:
     if not sep or not name.strip() or not value.strip():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE such as key=0.36; got {text!r}")
     return name.strip(), _param_value(value.strip())
-
-
-# ------------------------------------------------------------------------------------------------ parser
-
-
-class _Formatter(argparse.RawDescriptionHelpFormatter):
-    """Keeps the examples' line breaks (descriptions are wrapped by :func:`_wrap`)."""
 
 
 # ------------------------------------------------------------------------------------------------ parser
@@ -305,6 +314,15 @@ def _add_demo(commands: Any) -> None:
     )
 
 
+_NOISE_HELP = (
+    "{default}; none (Eq. 1 exactly); a preset: photon-counting (1 e- per count, 1 e- read noise), q16 (16 e- "
+    "per count, 16 e- read noise) or dfpa (a digital-pixel focal plane array like the paper's camera; see "
+    "torch_modulo.noise.NoiseModel.preset); default (photon-counting); or KEY=VALUE pairs, optionally after a "
+    "preset whose fields they change: q=electrons per count, read=read noise (e- rms), dark=dark current (e- per "
+    "unit exposure), prnu=fixed-pattern gain spread, shot=on|off; e.g. read=2,prnu=0.01 or q16,read=20"
+)
+
+
 def _add_simulate(commands: Any) -> None:
     simulate = commands.add_parser(
         "simulate",
@@ -312,32 +330,39 @@ def _add_simulate(commands: Any) -> None:
         formatter_class=_Formatter,
         description=_wrap(
             "Capture every HDR radiance file in IN (.exr .hdr .pfm .tif) with a simulated modulo sensor (paper "
-            "Eq. 1, optionally with shot/read noise) at each exposure, and write one frame stack per scene: the "
-            "folder OUT/<scene>/ with one frame per exposure (frame_b000_m00.exr, ...; each frame's exposure and "
-            "bit depth in its metadata), the manifest frames.json (read back by torch_modulo.sensors.FileSensor "
-            "and by `torch-modulo unwrap`) and, unless --no-truth, radiance.exr: the scaled radiance the frames "
-            "were captured from (counts per unit exposure), the ground truth for training and scoring."
+            "Eq. 1, with shot and read noise by default, as torch_modulo.sensors.SimulatedModuloSensor()) at each "
+            "exposure, and write one frame stack per scene: the folder OUT/<scene>/ with one frame per exposure "
+            "(frame_b000_m00.exr, ...; each frame's exposure and bit depth in its metadata), the manifest "
+            "frames.json (with the noise model, read back by torch_modulo.sensors.FileSensor and by `torch-modulo "
+            "unwrap`, which decodes with it) and, unless --no-truth, radiance.exr: the scaled radiance the frames "
+            "were captured from (counts per unit exposure), the ground truth for training and scoring. By default "
+            "(--exposures auto) each scene gets the exposures that plan_exposures plans for its own dynamic range, "
+            "bit depth and noise model; one given exposure makes a single-shot stack whose frame wraps (for "
+            "`torch-modulo unwrap --single`)."
         ),
-        epilog="example:\n  torch-modulo simulate hdr_scenes/ stacks/ --bits 8 --exposures 1,256,65536 "
-        "--noise read=2 --seed 1\n" + _FOLDER_EPILOG.format(command="simulate"),
+        epilog="examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
+        "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
+        "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
+        + _FOLDER_EPILOG.format(command="simulate"),
     )
     _add_folder_options(simulate, "folder of HDR radiance files (or one file)", "folder for the frame stacks")
     simulate.add_argument("--bits", type=_bits, default=8, help="sensor bit depth N, 1 to 24 (default: 8)")
     simulate.add_argument(
         "--exposures",
         type=_exposures,
-        default=[1.0, 256.0, 65536.0],
-        metavar="T1,T2,...",
-        help="exposures, comma-separated (default: 1,256,65536); neighbouring ratios up to 2^bits can be unwrapped",
+        default="auto",
+        metavar="auto|T1,T2,...",
+        help="auto (default): per scene, plan_exposures(stops, bits, noise=...) for the scene's own stops "
+        "(log2 of its maximum over the 0.1th percentile of its positive values, plus 4, rounded up), the longest "
+        "exposure 1; or exposures, comma-separated, e.g. 1,16,256 (under noise, ratios the noise model says are "
+        "unsafe draw a warning naming a safe plan; one exposure: a single-shot stack)",
     )
     simulate.add_argument(
         "--noise",
         type=_noise,
         default=None,
         metavar="MODEL",
-        help="none (default: Eq. 1 exactly), default (shot noise, 1 e- read noise) or KEY=VALUE pairs: "
-        "q=electrons per count, read=read noise (e- rms), dark=dark current (e- per unit exposure), "
-        "prnu=fixed-pattern gain spread, shot=on|off; e.g. read=2,prnu=0.01",
+        help=_NOISE_HELP.format(default="the sensor's noise: photon-counting (default)"),
     )
     simulate.add_argument(
         "--seed",
@@ -351,8 +376,11 @@ def _add_simulate(commands: Any) -> None:
         type=_scale,
         default="auto",
         metavar="auto|S",
-        help="radiance multiplier into counts per unit exposure; auto (default) makes the brightest value read "
-        "2^bits - 1 at the shortest exposure, so that frame does not roll over",
+        help="radiance multiplier into counts per unit exposure; auto (default): with --exposures auto, the 0.1th "
+        "percentile of the positive values reads 16 counts at the longest exposure; with several given exposures, "
+        "the brightest value reads 2^bits - 1 at the shortest (under noise, three standard deviations below the "
+        "rollover), so that frame does not roll over; with one given exposure, the 99.9th percentile of the "
+        "luminance (grey: of all values) reads 16 periods, 16 * 2^bits - 1 counts (4095 at 8 bits), so it wraps",
     )
     simulate.add_argument(
         "--format",
@@ -375,21 +403,35 @@ def _add_unwrap(commands: Any) -> None:
         help="frame stacks (or single modulus images) -> radiance EXRs",
         formatter_class=_Formatter,
         description=_wrap(
-            "Recover radiance. Default (multi shot, paper Eqs. 6-7): every frame stack in IN, i.e. every folder "
-            "with a frames.json manifest as `torch-modulo simulate` or torch_modulo.sensors.write_frames write "
-            "it, becomes OUT/<stack>.exr by rollover counting (unwrap_multi; stacks of a conventional sensor, "
-            "kind 'intensity', are merged with merge_intensity instead). With --single (paper Eqs. 3-5): every "
-            "modulus image in IN (.exr .png .tif .pfm) is unwrapped alone (unwrap_single, see --method) and "
-            "becomes OUT/<image>.exr, the restored counts divided by the frame's exposure. Output values are "
-            "radiance in counts per unit exposure; the metadata records the source, bit depth and exposures."
+            "Recover radiance. Default (multi shot): every frame stack in IN, i.e. every folder with a frames.json "
+            "manifest as `torch-modulo simulate` or torch_modulo.sensors.write_frames write it, becomes "
+            "OUT/<stack>.exr by rollover counting (unwrap_multi), noise-aware with the noise model recorded in the "
+            "stack's metadata (see --noise; where none is recorded, noise-free: paper Eqs. 6-7); stacks of a "
+            "conventional sensor, kind 'intensity', are merged with merge_intensity instead. With --single (paper "
+            "Eqs. 3-5): every stack of one exposure (`torch-modulo simulate --exposures 1`) and every modulus "
+            "image in IN outside the stacks (.exr .png .tif .pfm) is unwrapped alone (unwrap_single, see --method) "
+            "and becomes OUT/<name>.exr, the restored counts divided by the frame's exposure. Output values are "
+            "radiance in counts per unit exposure; the metadata records the source, bit depth, exposures and noise "
+            "model. Where a stack holds its ground truth (radiance.exr, as simulate writes it) the report scores "
+            "each result against it (multi shot: median relative error and the share of values more than 50% "
+            "off; single shot: exact rollover counts and PSNR) and the summary line gives the means; the "
+            "decoder's warnings (exposure ratios too large for the noise) are printed and kept in the report."
         ),
         epilog="examples:\n  torch-modulo unwrap stacks/ radiance/\n"
+        "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
+        "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
         "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
         + _FOLDER_EPILOG.format(command="unwrap"),
     )
-    _add_folder_options(unwrap, "folder of frame stacks, or of modulus images with --single", "folder for the EXRs")
+    _add_folder_options(
+        unwrap,
+        "folder of frame stacks, or with --single of single-exposure stacks or modulus images",
+        "folder for the EXRs",
+    )
     unwrap.add_argument(
-        "--single", action="store_true", help="IN holds single modulus images: unwrap each one alone (unwrap_single)"
+        "--single",
+        action="store_true",
+        help="unwrap one frame alone (unwrap_single): stacks of one exposure and modulus images",
     )
     unwrap.add_argument(
         "--bits",
@@ -401,7 +443,18 @@ def _add_unwrap(commands: Any) -> None:
         "--exposure",
         type=_positive_float,
         default=None,
-        help="with --single: the frames' exposure (default: from the metadata, else 1)",
+        help="with --single: the exposure of modulus images (default: from the metadata, else 1; stacks carry "
+        "their own)",
+    )
+    unwrap.add_argument(
+        "--noise",
+        type=_noise,
+        default=None,
+        metavar="MODEL",
+        help=_NOISE_HELP.format(
+            default="multi shot: the sensor's noise model for noise-aware decoding (default: the one each stack "
+            "records, noise-free where none is; none forces noise-free decoding)"
+        ),
     )
     unwrap.add_argument(
         "--confidence",
@@ -416,10 +469,11 @@ def _add_unwrap(commands: Any) -> None:
         dest="method",
         default=None,
         metavar="METHOD",
-        help="multi shot: the rule, robust (default; exact for every ratio up to 2^bits) or paper (Eq. 6 as "
-        "printed); with --single: the method of unwrap_single, guided (path following, channels together; the "
-        "default), fast (the paper's graph cut on a cheaper schedule) or paper (Eqs. 3-5 from k = 0, slow); "
-        "--solver is its deprecated former name (--single only)",
+        help="multi shot: the rule, robust (default; exact for every ratio up to 2^bits without noise, and the one "
+        "that decodes with a noise model) or paper (Eq. 6 as printed, noise-free); with --single: the method of "
+        "unwrap_single, guided (path following, channels together; the default), fast (the paper's graph cut on "
+        "a cheaper schedule) or paper (Eqs. 3-5 from k = 0, slow); --solver is its deprecated former name "
+        "(--single only)",
     )
 
 
@@ -431,10 +485,10 @@ def _add_tonemap(commands: Any) -> None:
         description=_wrap(
             "Tone-map every radiance file in IN (.exr .hdr .pfm .tif) to OUT/<name>.png with one of the operators "
             "of torch_modulo.tonemap: histogram (Larson et al. 1997, the paper's choice), reinhard, gamma, log, "
-            "clahe. Negative values (lossy files) are clamped to 0; of more than three channels (alpha, other views or "
-            "layers) the first three are taken as RGB."
+            "clahe. The PNGs are sRGB-encoded for display (see --srgb). Negative values (lossy files) are clamped "
+            "to 0; of more than three channels (alpha, other views or layers) the first three are taken as RGB."
         ),
-        epilog="examples:\n  torch-modulo tonemap radiance/ png/ --op histogram --srgb\n"
+        epilog="examples:\n  torch-modulo tonemap radiance/ png/ --op histogram\n"
         "  torch-modulo tonemap radiance/ png/ --op reinhard --param key=0.36 --depth 16\n"
         + _FOLDER_EPILOG.format(command="tonemap"),
     )
@@ -451,7 +505,13 @@ def _add_tonemap(commands: Any) -> None:
         help="an operator parameter, repeatable, e.g. key=0.36 (reinhard), gamma=2.4 exposure=1 (gamma), "
         "clip_limit=3 grid_size=8,8 (clahe), ld_max=200 (histogram); see torch_modulo.tonemap",
     )
-    tonemap.add_argument("--srgb", action="store_true", help="apply the sRGB transfer function to the result")
+    tonemap.add_argument(
+        "--srgb",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="encode the PNGs for display with the sRGB transfer function (default: on, as the demo's, for every "
+        "operator but gamma, whose gamma already encodes them; --no-srgb writes linear display values)",
+    )
     tonemap.add_argument("--depth", type=int, choices=(8, 16), default=8, help="PNG bits per sample (default: 8)")
     tonemap.add_argument("--nonfinite", choices=NONFINITE, default="replace", help=_NONFINITE_HELP)
 
@@ -476,22 +536,32 @@ def build_parser() -> argparse.ArgumentParser:
 # Usage errors end here with the subcommand's usage (exit code 2), before anything is written.
 
 
+def _noise_option(value: dict[str, Any] | str | None, default: Any) -> Any:
+    """A parsed ``--noise``: ``default`` when not given, None for ``none``, else the NoiseModel fields."""
+    if value is None:
+        return default
+    return None if value == "none" else value
+
+
 def _simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
     if args.format != "exr" and args.bits > 16:
         sub.error(f"--format {args.format} holds at most 16 bits; got --bits {args.bits} (use --format exr)")
-    taus = sorted(args.exposures)
-    too_far = [(a, b) for a, b in zip(taus, taus[1:], strict=False) if b / a > 2**args.bits]
-    if too_far:
-        a, b = too_far[0]
-        print(
-            f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
-            "`torch-modulo unwrap` cannot count the rollovers between them",
-            file=sys.stderr,
-        )
+    if args.exposures != "auto":
+        taus = sorted(args.exposures)
+        too_far = [(a, b) for a, b in zip(taus, taus[1:], strict=False) if b / a > 2**args.bits]
+        if too_far:
+            a, b = too_far[0]
+            print(
+                f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
+                "`torch-modulo unwrap` cannot count the rollovers between them",
+                file=sys.stderr,
+            )
+    from torch_modulo.noise import NoiseModel
+
     options = {
         "bits": args.bits,
         "exposures": args.exposures,
-        "noise": args.noise,
+        "noise": _noise_option(args.noise, NoiseModel.preset(DEFAULT_NOISE).to_dict()),
         "seed": args.seed,
         "scale": args.scale,
         "format": args.format,
@@ -514,6 +584,12 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
     option = getattr(args, "method_option", None) or "--method"
     if args.confidence and not args.single:
         sub.error("--confidence applies to --single only")
+    if args.noise is not None and args.single:
+        sub.error("--noise applies to multi shot only (unwrap_single takes no noise model)")
+    if args.noise not in (None, "none") and args.method == "paper":
+        sub.error(
+            "--method paper decodes Eqs. 6-7 as printed and takes no noise model: use --method robust, or --noise none"
+        )
     rule, method = "robust", None  # the option keys stay "method" (multi shot) and "solver" (single shot)
     if args.single:
         from torch_modulo.singleshot import METHODS
@@ -537,6 +613,7 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
         "bits": args.bits,
         "exposure": args.exposure,
         "method": rule,
+        "noise": _noise_option(args.noise, "stack"),
         "solver": method,
         "confidence": args.confidence,
         # Graph cuts inside each job use processes of their own only when the batch itself runs one at a time.
@@ -547,8 +624,9 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
 def _tonemap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
     from torch_modulo.pipeline import tonemap_options
 
+    srgb = args.op != "gamma" if args.srgb is None else args.srgb  # gamma's own gamma encodes for display
     try:
-        options = tonemap_options(args.op, dict(args.param), srgb=args.srgb, depth=args.depth)
+        options = tonemap_options(args.op, dict(args.param), srgb=srgb, depth=args.depth)
     except (TypeError, ValueError) as error:
         sub.error(f"bad --param for --op {args.op}: {error}")
     return _with_nonfinite(options, args.nonfinite)
@@ -626,7 +704,28 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
         if report.parts is None:  # this rank's own part (rank 0 holds the merged report under torchrun)
             report_file = report_file.with_name(f"{report_file.stem}.rank{env.rank}{report_file.suffix}")
     print(f"{where}{report.summary()} (report: {report_file})", file=sys.stderr)
+    scores = _accuracy_summary(report.done)
+    if scores:
+        print(f"{where}{prog}: {scores}", file=sys.stderr)
     return report.exit_code
+
+
+def _accuracy_summary(done: Sequence[dict[str, Any]]) -> str:
+    """One line of the mean scores against the stored truth (``unwrap``), or "" when nothing was scored."""
+    scored = [entry["accuracy"] for entry in done if entry.get("accuracy")]
+    if not scored:
+        return ""
+
+    def mean(key: str) -> float:
+        return sum(s[key] for s in scored) / len(scored)
+
+    what = f"against the stored truth, mean over {len(scored)} result{'s' * (len(scored) > 1)}:"
+    if "exact_k" in scored[0]:
+        return f"{what} exact rollover counts {100 * mean('exact_k'):.2f}%, PSNR {mean('psnr_db'):.1f} dB"
+    return (
+        f"{what} median relative error {100 * mean('median_relative_error'):.2f}%, values more than 50% off "
+        f"{100 * mean('gross_share'):.3f}%"
+    )
 
 
 def _run_demo(args: argparse.Namespace) -> int:

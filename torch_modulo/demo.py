@@ -10,6 +10,11 @@
    counting (Eqs. 6-7), against the conventional merge of three clipped intensity captures with the same exposures.
 4. Tone-map everything with Larson et al.'s histogram adjustment (sRGB-encoded) and write EXRs, PNGs, one
    labelled comparison image and ``summary.json``.
+
+Files: ``single_shot.exr``, ``multi_shot.exr`` and ``intensity_merge.exr`` (radiance); ``modulus.png``, the 8-bit
+modulus image itself with its bit depth and exposure in its metadata (already a display image, and a camera frame
+that ``torch-modulo unwrap --single`` reads); ``<name>_tonemapped.png`` for the truth, the intensity image (its
+counts gamma-encoded) and the three recovered radiance maps; ``comparison.png``; ``summary.json``.
 """
 
 from __future__ import annotations
@@ -178,6 +183,8 @@ def run_demo(
     io.write_image(out / "modulus.png", modulus[0], metadata=metadata, dtype="uint8")
     written.append(out / "modulus.png")
     for name, image in display.items():
+        if name == "modulus":  # the modulus is its own display image: modulus.png holds it
+            continue
         target = out / f"{name}_tonemapped.png"
         io.write_image(target, image[0], dtype="uint8", normalized=True)
         written.append(target)

@@ -14,6 +14,20 @@ The jobs follow :data:`torch_modulo.batch.JobFunction`: ``job(task, options)`` r
 ``task.outputs`` atomically; they are module-level functions so that worker processes can receive them.
 :func:`folder_tasks` lists a command's tasks for an input folder.
 
+How ``simulate`` scales a scene and chooses its exposures (radiance in counts per unit exposure):
+
+- **Planned exposures** (``exposures="auto"``, the command line's default; :func:`plan_scene`): as protocol N of
+  the benchmarks, the 0.1th percentile of the scene's positive values reads 16 counts at the longest exposure
+  (1), the scene needs ``ceil(log2(max / that percentile) + 4)`` stops, and the exposures are
+  :func:`~torch_modulo.plan_exposures` for those stops, the bit depth and the noise model, the longest normalised
+  to 1 (noise-free: the noise-free plan).
+- **Given exposures, several** (:func:`fit_scale`): the brightest value reads ``2**bits - 1`` at the shortest
+  exposure; under noise, the largest count whose noisy reading stays three standard deviations below the
+  rollover. That frame does not roll over, as multi-shot unwrapping needs.
+- **Given exposure, one** (a single-shot stack, :func:`fit_scale`): as protocol A of the single-shot benchmarks,
+  the 99.9th percentile of the luminance (of all values for grey scenes) reads ``16 * 2**bits - 1`` counts (4095
+  at 8 bits: 16 periods), so the frame wraps.
+
 Each job imports the operations it runs (sensors, unwrapping, tone mapping) when it runs, so that importing this
 module (as :mod:`torch_modulo.data` does) does not import every operation.
 
@@ -32,6 +46,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import os
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,21 +54,35 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from torch_modulo._checks import check_choice, check_flag
+from torch_modulo._scene_rules import (
+    count_accuracy,
+    fit_scale,
+    noise_model,
+    noise_name,
+    plan_scene,
+    radiance_accuracy,
+    unsafe_ratio_warnings,
+)
 from torch_modulo.io import read_image
 
 if TYPE_CHECKING:
     from torch_modulo.batch import Task
+    from torch_modulo.sensors import FrameStack
 
 __all__ = [
+    "DEFAULT_NOISE",
     "JOBS",
     "MODULUS_EXTENSIONS",
     "NONFINITE",
     "PRELOAD",
     "RADIANCE_EXTENSIONS",
     "TONEMAP_OPS",
+    "TRUTH_FILE",
     "count_values",
+    "fit_scale",
     "folder_tasks",
     "load_radiance",
+    "plan_scene",
     "scene_seed",
     "simulate_job",
     "tonemap_job",
@@ -69,6 +98,10 @@ MODULUS_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm")
 TONEMAP_OPS = ("histogram", "reinhard", "gamma", "log", "clahe")
 #: What :func:`load_radiance` does with NaN and infinite values.
 NONFINITE = ("replace", "raise")
+#: The noise model ``simulate`` uses unless told otherwise: the preset that ``SimulatedModuloSensor()`` uses.
+DEFAULT_NOISE = "photon-counting"
+#: The ground truth ``simulate`` writes into each frame stack; ``unwrap`` scores against it when it is there.
+TRUTH_FILE = "radiance.exr"
 #: Modules each command's workers import up front.
 PRELOAD = {
     "simulate": ("torch_modulo.io", "torch_modulo.sensors", "torch_modulo.pipeline"),
@@ -222,8 +255,8 @@ def folder_tasks(
 
     ``simulate``: every radiance file -> the frame-stack folder ``out/<name>/``; ``tonemap``: every radiance file
     -> ``out/<name>.png``; ``unwrap``: every frame stack (folder with a ``frames.json``) -> ``out/<stack>.exr``,
-    or with ``single`` every modulus image -> ``out/<name>.exr`` (and ``out/<name>.confidence.exr`` with
-    ``confidence``). Output paths mirror the input's subfolders.
+    or with ``single`` every frame stack and every modulus image outside the stacks -> ``out/<name>.exr`` (and
+    ``out/<name>.confidence.exr`` with ``confidence``). Output paths mirror the input's subfolders.
 
     Raises:
         FileNotFoundError: ``source`` does not exist.
@@ -234,14 +267,19 @@ def folder_tasks(
     def suffix_match(extensions: Sequence[str]) -> Callable[[Path], bool]:
         return lambda p: p.is_file() and p.suffix.lower() in extensions
 
+    def is_stack(p: Path) -> bool:
+        return p.is_dir() and (p / "frames.json").is_file()
+
     if command in ("simulate", "tonemap"):
         found = discover(source, suffix_match(RADIANCE_EXTENSIONS))
         wanted = f"radiance files ({' '.join(RADIANCE_EXTENSIONS)})"
     elif single:
-        found = discover(source, suffix_match(MODULUS_EXTENSIONS))
-        wanted = f"modulus images ({' '.join(MODULUS_EXTENSIONS)})"
+        # A stack is one input (its frame, scored against its truth); the files inside it are not inputs.
+        image = suffix_match(MODULUS_EXTENSIONS)
+        found = discover(source, lambda p: is_stack(p) or image(p))
+        wanted = f"frame stacks or modulus images ({' '.join(MODULUS_EXTENSIONS)})"
     else:
-        found = discover(source, lambda p: p.is_dir() and (p / "frames.json").is_file())
+        found = discover(source, is_stack)
         wanted = "frame stacks (folders with a frames.json manifest)"
     tasks = []
     for name, path in found:
@@ -249,7 +287,8 @@ def folder_tasks(
         if command == "simulate":
             target = out / rel.with_suffix("")
         elif command == "unwrap":
-            target = out / (rel.with_suffix(".exr") if single else rel.with_name(rel.name + ".exr"))
+            stack = not single or path.is_dir()
+            target = out / (rel.with_name(rel.name + ".exr") if stack else rel.with_suffix(".exr"))
         else:
             target = out / rel.with_suffix(".png")
         targets = [target]
@@ -275,27 +314,33 @@ def scene_seed(seed: int, name: str) -> int:
 def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     """Job of ``torch-modulo simulate``: one HDR file -> one frame-stack folder (atomic).
 
-    Options: ``bits``, ``exposures``, ``noise`` (:class:`~torch_modulo.sensors.NoiseModel` fields or None),
-    ``seed``, ``scale`` (``"auto"`` or a number), ``format``, ``truth`` and, optionally, ``nonfinite``.
+    Options: ``bits``, ``exposures`` (``"auto"``: :func:`plan_scene`; or a list), ``noise`` (None, a preset name
+    or :class:`~torch_modulo.sensors.NoiseModel` fields), ``seed``, ``scale`` (``"auto"`` or a number),
+    ``format``, ``truth`` and, optionally, ``nonfinite``. The scaling rules are in the module docstring.
     """
     from torch_modulo.batch import atomic_output_dir
     from torch_modulo.io import write_image
-    from torch_modulo.sensors import FrameStack, NoiseModel, SimulatedModuloSensor, write_frames
+    from torch_modulo.sensors import FrameStack, SimulatedModuloSensor, write_frames
 
     bits = int(options["bits"])
-    taus = [float(t) for t in options["exposures"]]
     nonfinite = options.get("nonfinite", "replace")
+    noise = noise_model(options["noise"])
     image, counts = load_radiance(task.source, nonfinite=nonfinite, dtype=torch.float64, with_counts=True)
-    peak = float(image.max())
-    if options["scale"] == "auto":
-        if peak <= 0:
-            raise ValueError(f"{task.source} is black (maximum {peak}): --scale auto cannot scale it")
-        scale = (2**bits - 1) / (peak * min(taus))
+    if not float(image.max()) > 0:
+        raise ValueError(f"{task.source} is black (maximum {float(image.max())}): there is nothing to capture")
+    notes: list[str] = []
+    facts: dict[str, Any] = {}
+    if options["exposures"] == "auto":
+        taus, scale, facts["stops"] = plan_scene(image, bits, noise, scale=options["scale"])
+        facts["scaling"] = "auto exposures (protocol N)"
     else:
-        scale = float(options["scale"])
+        taus = [float(t) for t in options["exposures"]]
+        fixed = options["scale"] != "auto"
+        scale = float(options["scale"]) if fixed else fit_scale(image, bits, taus, noise)
+        facts["scaling"] = "fixed" if fixed else ("single shot (protocol A)" if len(taus) == 1 else "below rollover")
+        notes += unsafe_ratio_warnings(taus, bits, noise, image)
     # Round to float32 first: radiance.exr (float32) then holds exactly the radiance the frames were captured from.
     radiance = (image * scale).float().double()
-    noise = NoiseModel(**options["noise"]) if options["noise"] is not None else None
     seed = scene_seed(int(options["seed"]), task.name)
     stack = SimulatedModuloSensor(bits, noise, seed=seed)(radiance.unsqueeze(0), taus)
     metadata = {
@@ -305,6 +350,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         "unit": "counts per unit exposure",
         "bits": bits,
         "exposures": taus,
+        **facts,
     }
     dtype = torch.float32 if bits <= 24 else torch.float64
     stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind)
@@ -312,86 +358,165 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         write_frames(stack, folder, format=options["format"])
         if options["truth"]:
             write_image(
-                folder / "radiance.exr",
+                folder / TRUTH_FILE,
                 radiance.float(),
                 {"source": task.name, "radiance_scale": scale, "unit": "counts per unit exposure"},
             )
     info: dict[str, Any] = {
         "shape": list(image.shape),
         "radiance_scale": scale,
+        "exposures": taus,
+        "noise": noise_name(noise),
+        **facts,
         "negatives_clamped": counts["negative"],
     }
-    return _with_replaced(info, counts)
+    info = _with_replaced(info, counts)
+    if notes:
+        info["warnings"] = info.get("warnings", []) + notes
+    return info
 
 
 def _with_replaced(info: dict[str, Any], counts: Mapping[str, int]) -> dict[str, Any]:
-    warnings = _replaced(counts)
-    if warnings:
+    lines = _replaced(counts)
+    if lines:
         info["nonfinite_replaced"] = {k: counts[k] for k in ("nan", "posinf", "neginf")}
-        info["warnings"] = warnings
+        info["warnings"] = lines
     return info
+
+
+def _read_stack(source: str, bits: int | None) -> FrameStack:
+    """The one-scene frame stack in folder ``source``."""
+    from torch_modulo.sensors import FileSensor
+
+    # The frames' own dtype (float32 for stacks from simulate: exact up to 24 bits).
+    stack = FileSensor(source, bits=bits).read()
+    if stack.batch_size != 1:
+        raise ValueError(f"{source} holds {stack.batch_size} scenes; unwrap expects one scene per stack")
+    return stack
+
+
+def _truth(folder: str | os.PathLike[str], shape: Sequence[int]) -> torch.Tensor | None:
+    """The stack's stored ground truth (float64), or None when it is absent or of another shape."""
+    path = Path(folder) / TRUTH_FILE
+    if not path.is_file():
+        return None
+    truth = read_image(path, dtype=torch.float64)
+    return truth if tuple(truth.shape) == tuple(shape) else None
+
+
+def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, Any], dict[str, Any]]:
+    """Multi shot: rollover counting (noise-aware with a noise model) or the merge of an intensity stack."""
+    from torch_modulo.multishot import merge_intensity, unwrap_multi
+
+    stack = _read_stack(task.source, options["bits"])
+    choice = options.get("noise", "stack")
+    noise = noise_model(stack.metadata.get("noise") if choice == "stack" else choice)
+    if noise is not None and noise.is_noiseless:
+        noise = None  # every term off: the sensor read floor(tau E), which the noise-free rule decodes exactly
+    notes: list[str] = []
+    rule = options["method"]
+    if stack.kind == "intensity":
+        radiance = merge_intensity(stack.frames, stack.exposures, stack.bits, noise=noise)[0]
+        rule = "merge_intensity"
+    else:
+        if noise is not None and rule == "paper":
+            notes.append(
+                "--method paper decodes Eqs. 6-7 as printed and takes no noise model: the stack's noise model "
+                f"({noise_name(noise)}) was not used; --method robust decodes with it"
+            )
+            noise = None
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            radiance = unwrap_multi(stack.moduli, stack.exposures, stack.bits, rule, noise=noise)[0]
+        notes += [str(w.message) for w in caught]
+    metadata = {
+        "source": task.name,
+        "bits": stack.bits,
+        "exposures": stack.exposure_matrix()[0].tolist(),
+        "method": rule,
+        "noise": noise.to_dict() if noise is not None else None,
+        "kind": stack.kind,
+        "unit": "counts per unit exposure",
+    }
+    if "radiance_scale" in stack.metadata:
+        metadata["radiance_scale"] = stack.metadata["radiance_scale"]
+    info: dict[str, Any] = {"noise": noise_name(noise)}
+    truth = _truth(task.source, radiance.shape)
+    if truth is not None:
+        info["accuracy"] = radiance_accuracy(radiance, truth)
+    if notes:
+        info["warnings"] = notes
+    return radiance, metadata, info
+
+
+def _single_frame(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, int, float, torch.Tensor | None]:
+    """The modulus image ``unwrap --single`` unwraps, its bit depth and exposure, and the truth when stored."""
+    if Path(task.source).is_dir():  # a frame stack of one exposure, as `simulate --exposures T` writes
+        stack = _read_stack(task.source, options["bits"])
+        if stack.num_exposures != 1 or stack.kind != "modulo":
+            raise ValueError(
+                f"{task.source} holds {stack.num_exposures} {stack.kind} frames; --single unwraps one modulo frame: "
+                "unwrap this stack without --single, or simulate a single-shot stack with one exposure "
+                "(e.g. --exposures 1)"
+            )
+        image = stack.moduli[0, 0]
+        exposure = float(stack.exposure_matrix()[0, 0])
+        return image, stack.bits, exposure, _truth(task.source, image.shape)
+    image, meta = read_image(task.source, with_metadata=True)
+    bits = options["bits"]
+    if bits is None:
+        bits = meta.get("bits", meta.get("bit_depth"))
+        if bits is None:
+            raise ValueError(f"no bit depth in the metadata of {task.source}: pass --bits")
+    exposure = options["exposure"] or meta.get("exposure") or 1.0
+    return image, int(bits), float(exposure), None
+
+
+def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, Any], dict[str, Any]]:
+    from torch_modulo.io import write_image
+    from torch_modulo.singleshot import unwrap_confidence, unwrap_single
+
+    image, bits, exposure, truth = _single_frame(task, options)
+    method = {"method": options["solver"]} if options["solver"] is not None else {}
+    counts = unwrap_single(image.unsqueeze(0), bits, workers=options["_solver_workers"], **method)[0]
+    metadata = {
+        "source": task.name,
+        "bits": bits,
+        "exposure": exposure,
+        "method": "single",
+        "solver": options["solver"] or "default",
+        "unit": "counts per unit exposure",
+    }
+    if options.get("confidence"):
+        confidence = unwrap_confidence(counts.double(), bits)
+        write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})
+    info: dict[str, Any] = {}
+    if truth is not None:
+        info["accuracy"] = count_accuracy(counts, image, truth, exposure, bits)
+    return counts.double() / exposure, metadata, info
 
 
 def unwrap_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     """Job of ``torch-modulo unwrap``: one frame stack (or, single shot, one modulus image) -> one radiance EXR.
 
-    Options: ``single``, ``bits`` (None: from the files), ``exposure`` (single shot; None: from the metadata,
-    else 1), ``method`` (the multi-shot rule), ``solver`` (the single-shot method; None: the default),
-    ``confidence`` and ``_solver_workers`` (processes of the single-shot solver).
+    Options: ``single``, ``bits`` (None: from the files), ``exposure`` (single shot, loose images; None: from the
+    metadata, else 1), ``method`` (the multi-shot rule), ``noise`` (multi shot: ``"stack"``, the default, decodes
+    with the noise model recorded in the stack's metadata, noise-free where there is none; None: noise-free; or a
+    preset name or :class:`~torch_modulo.sensors.NoiseModel` fields), ``solver`` (the single-shot method; None:
+    the default), ``confidence`` and ``_solver_workers`` (processes of the single-shot solver).
+
+    With ``single``, the input is a modulus image or a frame stack of one exposure (as ``simulate`` writes it).
+    Where a stack holds its ground truth (:data:`TRUTH_FILE`), the result is scored against it: single shot by
+    the share of exact rollover counts and the PSNR of the counts (:func:`torch_modulo.metrics.exact_k_share`,
+    :func:`torch_modulo.metrics.psnr`), multi shot by the median relative error and the share of values more
+    than 50% off. The scores and the decoder's warnings are in the returned info (the report).
     """
     from torch_modulo.io import write_image
 
-    if options["single"]:
-        image, meta = read_image(task.source, with_metadata=True)
-        bits = options["bits"]
-        if bits is None:
-            bits = meta.get("bits", meta.get("bit_depth"))
-            if bits is None:
-                raise ValueError(f"no bit depth in the metadata of {task.source}: pass --bits")
-        exposure = options["exposure"] or meta.get("exposure") or 1.0
-        from torch_modulo.singleshot import unwrap_confidence, unwrap_single
-
-        method = {"method": options["solver"]} if options["solver"] is not None else {}
-        counts = unwrap_single(image.unsqueeze(0), int(bits), workers=options["_solver_workers"], **method)[0]
-        radiance = counts.double() / float(exposure)
-        metadata = {
-            "source": task.name,
-            "bits": int(bits),
-            "exposure": float(exposure),
-            "method": "single",
-            "solver": options["solver"] or "default",
-            "unit": "counts per unit exposure",
-        }
-        if options.get("confidence"):
-            confidence = unwrap_confidence(counts.double(), int(bits))
-            write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})
-    else:
-        from torch_modulo.multishot import merge_intensity, unwrap_multi
-        from torch_modulo.sensors import FileSensor
-
-        # The frames' own dtype (float32 for stacks from simulate: exact up to 24 bits; unwrap_multi decides in
-        # float64 internally, and the EXR stores float32 anyway).
-        stack = FileSensor(task.source, bits=options["bits"]).read()
-        if stack.batch_size != 1:
-            raise ValueError(f"{task.source} holds {stack.batch_size} scenes; unwrap expects one scene per stack")
-        if stack.kind == "intensity":
-            radiance = merge_intensity(stack.frames, stack.exposures, stack.bits)[0]
-            rule = "merge_intensity"
-        else:
-            radiance = unwrap_multi(stack.moduli, stack.exposures, stack.bits, options["method"])[0]
-            rule = options["method"]
-        metadata = {
-            "source": task.name,
-            "bits": stack.bits,
-            "exposures": stack.exposure_matrix()[0].tolist(),
-            "method": rule,
-            "kind": stack.kind,
-            "unit": "counts per unit exposure",
-        }
-        if "radiance_scale" in stack.metadata:
-            metadata["radiance_scale"] = stack.metadata["radiance_scale"]
+    job = _unwrap_single_job if options["single"] else _unwrap_stack
+    radiance, metadata, info = job(task, options)
     write_image(task.outputs[0], radiance.float(), metadata)
-    return {"shape": list(radiance.shape), "method": metadata["method"]}
+    return {"shape": list(radiance.shape), "method": metadata["method"], **info}
 
 
 def _tuples(params: Mapping[str, Any]) -> dict[str, Any]:

@@ -1,0 +1,213 @@
+"""How the folder commands scale a scene, choose its exposures, and score a result against the stored truth.
+
+The rules are described in :mod:`torch_modulo.pipeline` (which re-exports :func:`plan_scene` and
+:func:`fit_scale`); this module keeps them apart from the jobs that apply them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from torch_modulo.noise import PRESETS, NoiseModel, as_noise_model
+
+__all__ = [
+    "NoiseSpec",
+    "count_accuracy",
+    "fit_scale",
+    "noise_model",
+    "noise_name",
+    "plan_scene",
+    "radiance_accuracy",
+    "scene_stops",
+    "unsafe_ratio_warnings",
+]
+
+#: A noise model as the jobs take it: a NoiseModel, a preset name, a NoiseModel's fields, or None (noise-free).
+NoiseSpec = NoiseModel | str | Mapping[str, Any] | None
+
+
+def noise_model(noise: NoiseSpec) -> NoiseModel | None:
+    """A job option's noise (None, a preset name, NoiseModel fields or a NoiseModel) as a NoiseModel or None."""
+    if isinstance(noise, Mapping):
+        return NoiseModel(**noise)
+    return as_noise_model(noise)
+
+
+def noise_name(noise: NoiseModel | None) -> str | None:
+    """The preset a noise model is, else its fields; None without noise (for reports)."""
+    if noise is None:
+        return None
+    for name, fields in PRESETS.items():
+        if NoiseModel(**fields) == noise:
+            return name
+    return str(noise)
+
+
+def _low_and_peak(image: torch.Tensor) -> tuple[float, float]:
+    """Protocol N's reference: the 0.1th percentile of the positive values, and the largest value."""
+    positive = image[image > 0].double()
+    if not positive.numel():
+        raise ValueError(
+            f"the image is black (maximum {float(image.max()) if image.numel() else 0.0}): nothing to scale"
+        )
+    sample = positive[:: max(1, positive.numel() // 4_000_000)]  # torch.quantile takes at most 2^24 values
+    return float(torch.quantile(sample, 0.001)), float(positive.max())
+
+
+def scene_stops(image: torch.Tensor) -> int:
+    low, peak = _low_and_peak(image)
+    return math.ceil(math.log2(peak / low) + 4)
+
+
+def plan_scene(
+    image: torch.Tensor, bits: int = 8, noise: NoiseSpec = None, *, scale: float | str = "auto"
+) -> tuple[list[float], float, int]:
+    """Protocol N's exposures for one scene (``simulate --exposures auto``): ``(exposures, scale, stops)``.
+
+    The scene needs ``stops = ceil(log2(max / p) + 4)``, with ``p`` the 0.1th percentile of its positive values.
+    The exposures are :func:`~torch_modulo.plan_exposures` ``(stops, bits, noise=noise)``, scaled so that ``p``
+    times the radiance scale reads 16 counts at the longest. With ``scale="auto"`` the scale is ``16 / p`` and the
+    longest exposure is 1; with a number, the exposures move instead. Where the noise-free plan would put the
+    brightest value exactly on the rollover at the shortest exposure, one more stop is planned.
+
+    Args:
+        image: radiance >= 0 with at least one positive value, any shape.
+        bits: the sensor's bit depth.
+        noise: the sensor's noise model (a :class:`~torch_modulo.noise.NoiseModel`, a preset name or its fields),
+            or None.
+        scale: ``"auto"`` or the radiance multiplier.
+
+    Returns:
+        The exposures (ascending), the radiance scale and the stops.
+
+    Raises:
+        ValueError: a black image, or a scene the noise model cannot plan for.
+
+    Example:
+        >>> image = torch.exp2(torch.linspace(0.0, 12.0, 1000))       # 12 stops
+        >>> taus, scale, stops = plan_scene(image, bits=8)
+        >>> stops, len(taus), taus[-1], round(scale * float(image.max()) * taus[0])
+        (16, 3, 1.0, 254)
+    """
+    from torch_modulo.multishot import plan_exposures
+
+    model = noise_model(noise)
+    low, peak = _low_and_peak(image)
+    stops = math.ceil(math.log2(peak / low) + 4)
+    factor = 16.0 / low if scale == "auto" else float(scale)
+    for extra in (0, 1):
+        plan = plan_exposures(stops + extra, bits, noise=model)
+        longest = 16.0 / (low * factor)
+        taus = [t * longest / plan[-1] for t in plan]
+        if peak * factor * taus[0] * (1 + 1e-6) < 2**bits:
+            break
+    return taus, factor, stops + extra
+
+
+def _brightest_count(bits: int, noise: NoiseModel | None, sigmas: float = 3.0) -> float:
+    """The largest expected count whose reading stays ``sigmas`` deviations below the rollover (``2**bits - 1``
+    without noise)."""
+    top = 2.0**bits - 1
+    if noise is None or noise.is_noiseless:
+        return top
+    lo, hi = 0.0, top
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if mid + sigmas * math.sqrt(noise.count_variance(mid)) <= top else (lo, mid)
+    if lo < 1:
+        raise ValueError(f"noise {noise} leaves no count below the rollover at bits={bits}: use more bits")
+    return lo
+
+
+def fit_scale(image: torch.Tensor, bits: int, exposures: Sequence[float], noise: NoiseSpec = None) -> float:
+    """The radiance scale of ``simulate --scale auto`` for given exposures (see :mod:`torch_modulo.pipeline`).
+
+    Several exposures: the brightest value reads ``2**bits - 1`` at the shortest (under noise, the largest count
+    three standard deviations below the rollover). One exposure: the 99.9th percentile of the luminance (of all
+    values for grey or two-channel images) reads ``16 * 2**bits - 1`` counts, so the frame wraps.
+
+    Args:
+        image: radiance >= 0, (C, H, W) or any shape (luminance is taken where C = 3).
+        bits: the sensor's bit depth.
+        exposures: the exposures, one or more.
+        noise: the sensor's noise model (as for :func:`plan_scene`), or None.
+
+    Raises:
+        ValueError: a black image, or noise that leaves no count below the rollover.
+
+    Example:
+        >>> image = torch.tensor([[[1.0, 2.0, 4.0]]])
+        >>> fit_scale(image, 8, [1.0, 16.0]) * 4.0                    # the brightest reads 255 at exposure 1
+        255.0
+    """
+    peak = float(image.max()) if image.numel() else 0.0
+    if not peak > 0:
+        raise ValueError(f"the image is black (maximum {peak}): nothing to scale")
+    taus = [float(t) for t in exposures]
+    if len(taus) > 1:
+        return _brightest_count(bits, noise_model(noise)) / (peak * min(taus))
+    values = image
+    if image.dim() >= 3 and image.shape[-3] == 3:
+        from torch_modulo.tonemap import REC709_LUMA
+
+        values = torch.einsum("...chw,c->...hw", image.double(), torch.tensor(REC709_LUMA, dtype=torch.float64))
+    p = float(np.percentile(values.detach().double().cpu().numpy(), 99.9))
+    if not p > 0:
+        p = float(values.max())
+    return (16 * 2.0**bits - 1) / (p * taus[0])
+
+
+def unsafe_ratio_warnings(taus: Sequence[float], bits: int, noise: NoiseModel | None, image: torch.Tensor) -> list[str]:
+    """A warning when given exposures have a neighbouring ratio the noise model says is unsafe (naming a plan)."""
+    if noise is None or noise.is_noiseless or len(taus) < 2:
+        return []
+    from torch_modulo.multishot import plan_exposures, safe_ratio
+
+    ordered = sorted(taus)
+    worst = max(b / a for a, b in zip(ordered, ordered[1:], strict=False))
+    ratio, c_min = safe_ratio(bits, noise)
+    if worst <= ratio * (1 + 1e-9):
+        return []
+    stops = scene_stops(image)
+    try:
+        plan = f"{len(plan_exposures(stops, bits, noise=noise))} exposures"
+    except ValueError as error:
+        plan = f"none possible: {error}"
+    return [
+        f"exposure ratio {worst:g} is unsafe under {noise}: pixels that read up to {c_min:.0f} counts in the "
+        f"shorter frame cannot be decoded in the longer one and keep errors of 50% or more; keep ratios <= "
+        f"{ratio:.3g}, e.g. --exposures auto (for this scene plan_exposures({stops}, bits={bits}, noise=noise): "
+        f"{plan})"
+    ]
+
+
+def radiance_accuracy(estimate: torch.Tensor, truth: torch.Tensor) -> dict[str, float]:
+    """Relative error against the truth over the values it holds above 0: median and share more than 50% off."""
+    mask = truth > 0
+    if not bool(mask.any()):
+        return {}
+    rel = (estimate.double()[mask] - truth[mask]).abs() / truth[mask]
+    return {"median_relative_error": float(rel.median()), "gross_share": float((rel > 0.5).double().mean())}
+
+
+def count_accuracy(
+    counts: torch.Tensor, modulus: torch.Tensor, truth: torch.Tensor, exposure: float, bits: int
+) -> dict[str, float]:
+    """Exact-k and PSNR of restored counts against the truth's: the frame's modulus plus the multiple of ``2**bits``
+    nearest to ``exposure * truth`` (``floor(exposure * truth)`` for a noise-free frame)."""
+    from torch_modulo.metrics import exact_k_share, psnr
+
+    period = 2.0**bits
+    m = modulus.double()
+    reference = m + period * torch.round((truth * exposure - m) / period)
+    reference = torch.where(reference < 0, reference + period, reference)
+    restored = counts.double()
+    return {
+        "exact_k": float(exact_k_share(restored, reference, bits)[0]),
+        "psnr_db": float(psnr(restored, reference, peak=max(float(reference.max()), 1.0))[0]),
+    }
