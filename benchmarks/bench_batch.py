@@ -114,14 +114,14 @@ def _plans(wanted: list[str], tmp_path: Path, args: argparse.Namespace) -> list[
     if "tonemap" in wanted:
         plans.append(("tonemap", ["tonemap", scenes, "{out}"]))
     if "simulate" in wanted or "unwrap" in wanted:
-        plans.append(("simulate", ["simulate", scenes, str(tmp_path / "stacks")]))
+        simulate = ["simulate", scenes, str(tmp_path / "stacks"), "--exposures", "1,256,65536", "--noise", "none"]
+        plans.append(("simulate", simulate))
     if "unwrap" in wanted:
         plans.append(("unwrap", ["unwrap", str(tmp_path / "stacks"), "{out}"]))
     if "single" in wanted:
         n = _modulus_images(tmp_path / "scenes", tmp_path / "moduli", args.single_limit)
         print(f"wrote {n} modulus images for unwrap --single", file=sys.stderr)
-        # The CLI keeps --solver as the single-shot method's option name (also as an alias once renamed).
-        single = ["unwrap", str(tmp_path / "moduli"), "{out}", "--single", "--solver", args.method]
+        single = ["unwrap", str(tmp_path / "moduli"), "{out}", "--single", "--method", args.method]
         plans.append(("unwrap --single", single))
     return plans
 
