@@ -6,6 +6,7 @@ For each noise model (q = 1 e-/count with 1 e- read noise, q = 16 with 16 e-):
 
 - modulo: exposures from ``plan_exposures(stops, 8, noise=noise)`` (the longest normalised to 1), captured by
   ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)``;
+- blind: the noise-free plan (ratios near 2^N) decoded by the noise-free robust rule, as before noise-aware decoding;
 - oracle: the longest frame's noisy count with its rollover count known (the same noise draws: the simulated
   intensity sensor with bits=53 on float64 input and the same seed), divided by its exposure;
 - intensity: a conventional 8-bit sensor with the same noise, exposures spread from the same shortest exposure to 1
@@ -68,6 +69,14 @@ def geometric(first: float, ratio: float) -> list[float]:
     return [first * step**i for i in range(count - 1)] + [1.0]
 
 
+def blind_scores(batch: torch.Tensor, radiance: torch.Tensor, stops: int, noise: NoiseModel, seed: int) -> dict:
+    """The noise-blind way: the noise-free plan (ratios near 2^N) decoded by the noise-free robust rule."""
+    plan = tm.plan_exposures(stops, 8)
+    taus = [t / plan[-1] for t in plan]
+    moduli = SimulatedModuloSensor(8, noise, seed=seed)(batch, taus).moduli
+    return {**scores(tm.unwrap_multi(moduli, taus, 8)[0], radiance), "frames": len(taus)}
+
+
 def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) -> dict[str, object]:
     noise = NOISES[noise_name]
     image = protocols.load_scene(path, 512)
@@ -91,6 +100,7 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
         "modulo": scores(decoded[0], radiance),
         "oracle": scores(truth_counts[0, -1] / taus[-1], radiance),
         "robust": scores(tm.unwrap_multi(moduli, taus, 8)[0], radiance),
+        "blind": blind_scores(batch, radiance, stops, noise, seed),
     }
     for ratio in INTENSITY_RATIOS:
         taus_i = geometric(taus[0], ratio)
@@ -102,11 +112,11 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
 
 def summarise(rows: list[dict[str, object]], noise_name: str) -> dict[str, object]:
     part = [r for r in rows if r["noise"] == noise_name]
-    keys = ["modulo", "oracle", "robust"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]
+    keys = ["modulo", "oracle", "robust", "blind"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]
     out: dict[str, object] = {"scenes": len(part), "frames_modulo": statistics.mean(r["frames"] for r in part)}
     for key in keys:
         out[key] = {s: statistics.mean(r[key][s] for r in part) for s in ("median", "p99", "gross")}
-        if key.startswith("intensity"):
+        if key.startswith("intensity") or key == "blind":
             out[key]["frames"] = statistics.mean(r[key]["frames"] for r in part)
     return out
 
@@ -142,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n| noise | decoder | frames | median rel. error | p99 | gross (>50%) |")
     print("|---|---|---|---|---|---|")
     for name, s in summary.items():
-        for key in ["modulo", "oracle", "robust"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]:
+        for key in ["modulo", "oracle", "robust", "blind"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]:
             frames = s["frames_modulo"] if key in ("modulo", "robust", "oracle") else s[key]["frames"]
             v = s[key]
             print(f"| {name} | {key} | {frames:.1f} | {v['median']:.4f} | {v['p99']:.4f} | {v['gross']:.4%} |")
