@@ -8,7 +8,7 @@ adapters, data pipelines and a command line.
 
 from __future__ import annotations
 
-from torch_modulo import data, io, sensors
+from torch_modulo import cfa, data, io, sensors
 from torch_modulo._checks import set_validation, validation, validation_enabled
 from torch_modulo.capture import (
     ExposureStack,
@@ -21,6 +21,7 @@ from torch_modulo.capture import (
     capture_stack,
     modulo_wrap,
 )
+from torch_modulo.cfa import Demosaic, Mosaic, demosaic, mosaic
 from torch_modulo.metrics import (
     PSNR,
     PSNRPU21,
@@ -81,6 +82,10 @@ __all__ = [
     "SingleShotInfo",
     "SingleShotUnwrap",
     "unwrap_single",
+    "Demosaic",
+    "Mosaic",
+    "demosaic",
+    "mosaic",
     "ClaheToneMap",
     "GammaToneMap",
     "HistogramToneMap",
@@ -112,6 +117,7 @@ __all__ = [
     "ModuloCapture",
     "ModuloWrap",
     "__version__",
+    "cfa",
     "data",
     "io",
     "sensors",

@@ -8,7 +8,8 @@ Where :class:`FileSensor` finds each frame's exposure and the bit depth, first m
        {"bits": 8, "frames": [{"file": "short.png", "exposure": 1.0},
                               {"file": "long.png",  "exposure": 16.0}]}
 
-   Optional keys: ``"kind"`` (``"modulo"`` or ``"intensity"``), ``"metadata"`` (a dict), ``"exposures"`` (the
+   Optional keys: ``"kind"`` (``"modulo"`` or ``"intensity"``), ``"cfa"`` (the colour filter array of mosaicked
+   frames: ``"RGGB"``, ``"BGGR"``, ``"GRBG"`` or ``"GBRG"``), ``"metadata"`` (a dict), ``"exposures"`` (the
    stack's exposures as (M,) or (B, M) lists), and per frame ``"batch"`` and ``"index"`` (its place in a
    (B, M, C, H, W) stack; by default frames are the exposures of one scene, in the listed order). Frame files
    are named relative to the manifest's folder and may not lead out of it (``../x.png`` or ``/x.png`` is refused);
@@ -16,6 +17,10 @@ Where :class:`FileSensor` finds each frame's exposure and the bit depth, first m
    ``"exposure"`` and ``"bits"``;
 4. the frame's own metadata (EXR attributes, or the metadata :func:`torch_modulo.io.write_image` stores in PNG and
    TIFF): ``"exposure"`` (or ``"exposure_time"``, ``"ExposureTime"``) and ``"bits"`` (or ``"bit_depth"``).
+
+The colour filter array of a colour sensor's mosaics (:attr:`FrameStack.cfa`) is found the same way: the ``cfa=``
+argument, the manifest's ``"cfa"`` (or its metadata's), a sidecar's or the frame's own ``"cfa"``; frames without
+one are not mosaics.
 
 Image frames (.exr, .png, .tif, .tiff, .pfm, .hdr) are read with :func:`torch_modulo.io.read_image`: integer files
 give their raw values (a 12-bit camera frame stored in a 16-bit PNG reads as 0..4095). Headerless raw dumps are
@@ -40,6 +45,7 @@ import numpy as np
 import torch
 
 from torch_modulo._checks import check_bits, check_choice, check_int, check_modulus, check_real
+from torch_modulo.cfa import check_cfa
 from torch_modulo.io import read_image, write_image
 from torch_modulo.sensors._swap import replace_folder
 from torch_modulo.sensors.frames import KINDS, FrameStack
@@ -219,6 +225,8 @@ class FileSensor:
         exposures: one exposure per file, in file order; overrides the files' metadata.
         raw: how to read headerless raw dumps (files with ``raw.extensions``); None when there are none.
         kind: ``"modulo"`` or ``"intensity"``; default the manifest's, else ``"modulo"``.
+        cfa: the colour filter array of mosaicked frames (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``);
+            default the manifest's, else a sidecar's or the frames' own metadata's, else None (not mosaics).
         dtype: floating dtype of the frames; default the manifest's (what :func:`write_frames` was given), else
             ``torch.float32``. Bits above 24 need ``torch.float64``.
         device: where the frames go.
@@ -227,7 +235,8 @@ class FileSensor:
         FileNotFoundError: the folder or a file is missing.
         OSError: a file cannot be read (not an image, truncated, ...).
         ValueError: no frames, missing or bad exposure or bit depth, frames of different sizes, values not
-            integers in ``[0, 2**bits)``, a raw file of the wrong size, a bad manifest.
+            integers in ``[0, 2**bits)``, a raw file of the wrong size, a bad manifest, an unknown or disagreeing
+            colour filter array, or one given for frames that are not mosaics.
 
     Example:
         >>> import tempfile
@@ -247,6 +256,7 @@ class FileSensor:
         exposures: Sequence[float] | torch.Tensor | None = None,
         raw: RawFormat | None = None,
         kind: str | None = None,
+        cfa: str | None = None,
         dtype: torch.dtype | None = None,
         device: torch.device | str | None = None,
     ) -> None:
@@ -264,6 +274,7 @@ class FileSensor:
         else:
             self.exposures = None
         self.kind = kind
+        self.cfa = check_cfa(cfa) if cfa is not None else None
         self.dtype = dtype
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         self.manifest: dict[str, Any] | None = None
@@ -343,6 +354,12 @@ class FileSensor:
             check_choice(data["kind"], f"{manifest}: kind", KINDS)
         if data.get("metadata") is not None and not isinstance(data["metadata"], dict):
             raise ValueError(f"{manifest}: metadata must be an object; got {type(data['metadata']).__name__}")
+        top, inner = data.get("cfa"), (data.get("metadata") or {}).get("cfa")
+        for key, pattern in (("cfa", top), ("metadata['cfa']", inner)):
+            if pattern is not None:
+                _from_source(check_cfa, pattern, f"{manifest}: {key}")
+        if top is not None and inner is not None and top != inner:
+            raise ValueError(f"{manifest}: cfa {top!r} disagrees with the metadata's cfa {inner!r}")
         self.manifest = data
         self.manifest_path = manifest
         return frames
@@ -361,6 +378,7 @@ class FileSensor:
         images: list[torch.Tensor] = []
         taus: list[float] = []
         bits_seen: dict[int, Path] = {}
+        patterns: dict[str, Path] = {}
         for i, frame in enumerate(self.frames):
             image, embedded = self._read_frame(frame)
             sidecar_path = _sidecar(frame.path)
@@ -404,17 +422,20 @@ class FileSensor:
                     f"frame {frame.path} has bits={bits} but {other} has bits={other_bits}: one stack has one bit depth"
                 )
             bits_seen.setdefault(bits, frame.path)
+            _frame_cfa(patterns, frame.path, sidecar.get("cfa"), embedded.get("cfa"), sidecar_path)
             check_modulus(image, bits, f"frame {frame.path}")
             images.append(image)
             taus.append(tau)
         bits = next(iter(bits_seen))
-        return self._assemble(images, taus, bits)
+        return self._assemble(images, taus, bits, next(iter(patterns), None))
 
-    def _assemble(self, images: list[torch.Tensor], taus: list[float], bits: int) -> FrameStack:
+    def _assemble(self, images: list[torch.Tensor], taus: list[float], bits: int, frames_cfa: str | None) -> FrameStack:
         data = self.manifest or {}
         where = self.manifest_path
         kind = self.kind or data.get("kind") or "modulo"
         metadata = dict(data.get("metadata") or {})
+        cfa = self.cfa or data.get("cfa") or metadata.get("cfa") or frames_cfa
+        metadata.pop("cfa", None)
         # Place each frame at (batch, exposure index); frames without an index follow each other in order.
         slots: dict[tuple[int, int], int] = {}
         counters: dict[int, int] = {}
@@ -448,7 +469,10 @@ class FileSensor:
             name = data.get("dtype")
             dtype = _DTYPES.get(name, torch.float32) if isinstance(name, str) else torch.float32
         moduli = moduli.to(device=self.device, dtype=dtype)
-        return FrameStack(moduli, tau, bits, metadata, kind=kind)
+        if cfa is not None and (moduli.shape[-3] != 1 or moduli.shape[-2] % 2 or moduli.shape[-1] % 2):
+            shape, folder = tuple(moduli.shape[-3:]), where or self.frames[0].path.parent
+            raise ValueError(f"frames in {folder} are not mosaics (cfa={cfa!r}), (1, even H, even W); got {shape}")
+        return FrameStack(moduli, tau, bits, metadata, kind=kind, cfa=cfa)
 
     __call__ = read
 
@@ -457,6 +481,18 @@ class FileSensor:
 
 
 # ---------------------------------------------------------------------------------------------- writing
+
+
+def _frame_cfa(patterns: dict[str, Path], path: Path, sidecar: Any, embedded: Any, sidecar_path: Path | None) -> None:
+    """Note the pattern a frame's sidecar (first) or own metadata names; frames that disagree are refused."""
+    value, source = (sidecar, sidecar_path) if sidecar is not None else (embedded, f"the metadata of {path}")
+    if value is None:
+        return
+    pattern = _from_source(check_cfa, value, f"cfa from {source}")
+    if patterns and pattern not in patterns:
+        other_cfa, other = next(iter(patterns.items()))
+        raise ValueError(f"frame {path} has cfa={pattern!r} but {other} has cfa={other_cfa!r}: one stack, one pattern")
+    patterns.setdefault(pattern, path)
 
 
 def _json_ready(value: Any, where: str) -> Any:
@@ -476,8 +512,9 @@ def write_frames(
 ) -> Path:
     """Write a :class:`FrameStack` to a folder so that ``FileSensor(folder).read()`` gives it back exactly.
 
-    One file per frame, ``{prefix}_b{batch:03d}_m{index:02d}.{ext}``, each with its exposure and bit depth in its
-    own metadata, plus the manifest ``frames.json`` with the bit depth, kind, exposures, metadata and layout.
+    One file per frame, ``{prefix}_b{batch:03d}_m{index:02d}.{ext}``, each with its exposure and bit depth (and the
+    colour filter array of mosaics, :attr:`FrameStack.cfa`) in its own metadata, plus the manifest ``frames.json``
+    with the bit depth, kind, pattern, exposures, metadata and layout.
 
     The stack is written atomically: everything goes to a hidden folder beside ``folder``, which then takes
     ``folder``'s place in one rename. If anything fails, ``folder`` is left as it was: the previous stack whole,
@@ -539,12 +576,15 @@ def write_frames(
         "metadata": metadata,
         "frames": [],
     }
+    frame_meta: dict[str, Any] = {"bits": bits}
+    if stack.cfa is not None:
+        manifest["cfa"] = frame_meta["cfa"] = stack.cfa
 
     def build(tmp: Path) -> None:
         for b in range(stack.batch_size):
             for m in range(stack.num_exposures):
                 name = f"{prefix}_b{b:03d}_m{m:02d}{ext}"
-                write_image(tmp / name, moduli[b, m], {"exposure": taus[b][m], "bits": bits}, dtype=dtype)
+                write_image(tmp / name, moduli[b, m], {"exposure": taus[b][m], **frame_meta}, dtype=dtype)
                 manifest["frames"].append({"file": name, "batch": b, "index": m, "exposure": taus[b][m]})
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, allow_nan=True))
 

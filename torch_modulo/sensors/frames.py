@@ -15,6 +15,7 @@ from typing import Any
 import torch
 
 from torch_modulo._checks import check_bits, check_choice, check_floating, check_modulus, exposure_tensor
+from torch_modulo.cfa import check_cfa
 
 __all__ = ["KINDS", "FrameStack"]
 
@@ -37,11 +38,16 @@ class FrameStack:
         bits: the sensor's bit depth ``N``.
         metadata: JSON-compatible facts about the capture (sensor, noise model, file names, ...); copied.
         kind: ``"modulo"`` (default) or ``"intensity"``.
+        cfa: the colour filter array of a colour sensor's mosaicked frames (one of
+            :data:`torch_modulo.cfa.CFA_PATTERNS`, e.g. ``"RGGB"``), or None; default the metadata's ``"cfa"``.
+            The pattern is kept in the metadata under ``"cfa"`` (so files carry it) and read back by :attr:`cfa`.
+            Mosaicked frames have one channel and an even height and width.
 
     Raises:
         TypeError: ``moduli`` is not a floating tensor, ``exposures`` not numbers, ``metadata`` not a dict.
         ValueError: wrong shapes, values outside ``[0, 2**bits)`` or not integers, non-positive exposures,
-            unknown ``kind``.
+            unknown ``kind``, an unknown ``cfa`` or one that disagrees with the metadata's, frames that cannot be
+            a mosaic (more than one channel, odd height or width).
 
     Example:
         >>> from torch_modulo import capture_modulo
@@ -65,6 +71,7 @@ class FrameStack:
         metadata: Mapping[str, Any] | None = None,
         *,
         kind: str = "modulo",
+        cfa: str | None = None,
     ) -> None:
         check_floating(moduli, "moduli")
         if moduli.dim() == 4:
@@ -87,10 +94,14 @@ class FrameStack:
             metadata = {}
         if not isinstance(metadata, Mapping):
             raise TypeError(f"metadata must be a dict; got {type(metadata).__name__}")
+        metadata = copy.deepcopy(dict(metadata))
+        cfa = _check_stack_cfa(cfa, metadata.get("cfa"), moduli.shape)
+        if cfa is not None:
+            metadata["cfa"] = cfa
         self._moduli = moduli
         self._exposures = tau
         self._bits = bits
-        self._metadata = copy.deepcopy(dict(metadata))
+        self._metadata = metadata
         self._kind = kind
 
     # ------------------------------------------------------------------------------------------ fields
@@ -124,6 +135,11 @@ class FrameStack:
     def kind(self) -> str:
         """``"modulo"`` or ``"intensity"``."""
         return self._kind
+
+    @property
+    def cfa(self) -> str | None:
+        """The colour filter array of mosaicked frames (``"RGGB"``, ...; the metadata's ``"cfa"``), or None."""
+        return self._metadata.get("cfa")
 
     @property
     def batch_size(self) -> int:
@@ -200,10 +216,28 @@ class FrameStack:
         shape = tuple(self._moduli.shape)
         taus = self._exposures.tolist() if self._exposures.numel() <= 8 else f"{tuple(self._exposures.shape)}"
         dtype = str(self._moduli.dtype).replace("torch.", "")
+        cfa = f", cfa={self.cfa!r}" if self.cfa is not None else ""
         return (
             f"FrameStack(moduli={shape} {dtype} on {self._moduli.device}, exposures={taus}, bits={self._bits}, "
-            f"kind={self._kind!r})"
+            f"kind={self._kind!r}{cfa})"
         )
+
+
+def _check_stack_cfa(cfa: object, stored: object, shape: torch.Size) -> str | None:
+    """The stack's pattern: ``cfa``, else the metadata's; checked against the frames' (B, M, C, H, W) shape."""
+    if cfa is not None and stored is not None and cfa != stored:
+        raise ValueError(f"cfa={cfa!r} disagrees with the metadata's cfa {stored!r}")
+    pattern = cfa if cfa is not None else stored
+    if pattern is None:
+        return None
+    pattern = check_cfa(pattern, "cfa" if cfa is not None else "metadata['cfa']")
+    c, h, w = shape[-3:]
+    if c != 1 or h % 2 or w % 2:
+        raise ValueError(
+            f"frames of a colour filter array (cfa={pattern!r}) must be mosaics with one channel and an even height "
+            f"and width, (B, M, 1, H, W); got shape {tuple(shape)}"
+        )
+    return pattern
 
 
 def _exposure_dtype(device: torch.device) -> torch.dtype:

@@ -18,6 +18,11 @@ pulse increments an ``N``-bit counter, which rolls over at ``2^N``. Per pixel an
 With no noise (``noise=None``, or a :class:`NoiseModel` whose terms are all off) the result is exactly
 :func:`torch_modulo.capture_modulo` (or :func:`~torch_modulo.capture_intensity`).
 
+A colour sensor (``cfa="RGGB"``, ... : :data:`torch_modulo.cfa.CFA_PATTERNS`) has a colour filter over every pixel:
+the RGB radiance is mosaicked first (:func:`torch_modulo.cfa.mosaic`, each photosite keeps the colour its filter
+passes), and steps 1-5 then run per photosite, fixed-pattern gain included. The frames are mosaics,
+(B, M, 1, H, W).
+
 Statistics (for choosing parameters): in counts, the mean is about :math:`\lambda/q - 1/2` and the variance
 about :math:`(\lambda + \sigma_r^2)/q^2 + 1/12` (the ``1/2`` and ``1/12`` come from the counter's floor) once the
 charge spreads over a few thresholds (:math:`\sqrt{\lambda + \sigma_r^2} \gtrsim q`); with ``q = 1`` and no read
@@ -47,6 +52,7 @@ from torch_modulo._checks import (
     exposure_tensor,
 )
 from torch_modulo.capture import capture_intensity, capture_modulo
+from torch_modulo.cfa import check_cfa, mosaic
 from torch_modulo.noise import NoiseModel, as_noise_model
 from torch_modulo.sensors.frames import FrameStack
 
@@ -103,6 +109,7 @@ def simulate_capture(
     wrap: bool = True,
     generator: torch.Generator | None = None,
     gain: torch.Tensor | None = None,
+    cfa: str | None = None,
 ) -> torch.Tensor:
     r"""Capture a radiance map at several exposures with a noisy modulo (or clipping) sensor.
 
@@ -115,16 +122,21 @@ def simulate_capture(
         wrap: True for a modulo sensor (Eq. 1), False for a conventional sensor that clips at ``2**bits - 1``.
         generator: random source for shot and read noise (and for the gain map when ``gain`` is None); its device
             must be the radiance's. None uses torch's global generator.
-        gain: fixed-pattern gain ``g``, broadcastable to (C, H, W) or (B, C, H, W); None draws one from
-            ``generator`` when ``noise.prnu > 0`` (a new pattern per call; sensors keep theirs fixed).
+        gain: fixed-pattern gain ``g``, broadcastable to (C, H, W) or (B, C, H, W) (with ``cfa``: to the mosaic,
+            (1, H, W) or (B, 1, H, W)); None draws one from ``generator`` when ``noise.prnu > 0`` (a new pattern per
+            call; sensors keep theirs fixed).
+        cfa: None, or the colour filter array of a colour sensor (``"RGGB"``, ``"BGGR"``, ``"GRBG"``,
+            ``"GBRG"``): the RGB radiance is mosaicked first (:func:`torch_modulo.cfa.mosaic`) and the noise drawn
+            per photosite; the frames then have one channel.
 
     Returns:
-        Frames of integers in ``[0, 2**bits)``, (B, M, C, H, W) (or (M, C, H, W) for unbatched radiance), same
-        dtype and device as ``radiance``. No gradient (the counter is discrete).
+        Frames of integers in ``[0, 2**bits)``, (B, M, C, H, W) (or (M, C, H, W) for unbatched radiance; C = 1
+        with ``cfa``), same dtype and device as ``radiance``. No gradient (the counter is discrete).
 
     Raises:
         TypeError: ``radiance`` not a floating tensor, ``noise`` not a NoiseModel.
-        ValueError: negative or non-finite radiance, bad exposures or shapes, bad gain.
+        ValueError: negative or non-finite radiance, bad exposures or shapes, bad gain; with ``cfa``, an unknown
+            pattern, radiance that is not RGB, or an odd height or width.
 
     Example:
         >>> radiance = torch.tensor([[[[0.5, 30.0, 300.0]]]])
@@ -135,9 +147,13 @@ def simulate_capture(
         >>> noisy = simulate_capture(radiance, [1.0, 4.0], bits=8, noise=NoiseModel(), generator=g)
         >>> noisy.shape
         torch.Size([1, 2, 1, 1, 3])
+        >>> simulate_capture(torch.full((1, 3, 4, 6), 300.0), [1.0, 2.0], cfa="RGGB").shape   # a colour sensor
+        torch.Size([1, 2, 1, 4, 6])
     """
     check_floating(radiance, "radiance")
     check_image_shape(radiance, "radiance", min_dims=3, max_dims=4)
+    if cfa is not None:
+        radiance = _mosaic_radiance(radiance, cfa)
     bits = check_bits(bits, radiance.dtype)
     noise = as_noise_model(noise)
     unbatched = radiance.dim() == 3
@@ -201,6 +217,17 @@ def simulate_capture(
     return counts[0] if unbatched else counts
 
 
+def _mosaic_radiance(radiance: torch.Tensor, cfa: str) -> torch.Tensor:
+    """The RGB ``radiance`` (B, 3, H, W) or (3, H, W) mosaicked with the pattern ``cfa`` (checked first)."""
+    cfa = check_cfa(cfa)
+    if radiance.shape[-3] != 3:
+        raise ValueError(
+            f"radiance must be RGB, (B, 3, H, W) or (3, H, W), for a colour sensor (cfa={cfa!r}); "
+            f"got shape {tuple(radiance.shape)}"
+        )
+    return mosaic(radiance.detach(), cfa)
+
+
 def _seed(value: object, name: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise TypeError(f"{name} must be an int; got {value!r}")
@@ -218,10 +245,12 @@ class _SimulatedSensor(nn.Module):
         *,
         seed: int = 0,
         fpn_seed: int | None = None,
+        cfa: str | None = None,
     ) -> None:
         super().__init__()
         self.bits = check_bits(bits, torch.float64)
         self.noise = as_noise_model(noise)
+        self.cfa = check_cfa(cfa) if cfa is not None else None
         self.seed = _seed(seed, "seed")
         self.fpn_seed = _seed(fpn_seed, "fpn_seed") if fpn_seed is not None else self.seed + 1
         self._generators: dict[torch.device, torch.Generator] = {}
@@ -258,6 +287,8 @@ class _SimulatedSensor(nn.Module):
         check_floating(radiance, "radiance")
         check_image_shape(radiance, "radiance", min_dims=3, max_dims=4)
         batched = radiance if radiance.dim() == 4 else radiance.unsqueeze(0)
+        if self.cfa is not None:
+            batched = _mosaic_radiance(batched, self.cfa)  # the noise and the gain are then per photosite
         gain = self.gain_map(batched.shape[1:], batched.device, torch.promote_types(batched.dtype, torch.float32))
         generator = self.generator(batched.device) if self.noise is not None else None
         frames = simulate_capture(
@@ -272,12 +303,13 @@ class _SimulatedSensor(nn.Module):
             "seed": self.seed,
             "fpn_seed": self.fpn_seed,
         }
-        return FrameStack(frames, tau, self.bits, metadata, kind=self._kind)
+        return FrameStack(frames, tau, self.bits, metadata, kind=self._kind, cfa=self.cfa)
 
     capture = forward
 
     def extra_repr(self) -> str:
-        return f"bits={self.bits}, noise={self.noise}, seed={self.seed}, fpn_seed={self.fpn_seed}"
+        cfa = f", cfa={self.cfa!r}" if self.cfa is not None else ""
+        return f"bits={self.bits}, noise={self.noise}, seed={self.seed}, fpn_seed={self.fpn_seed}{cfa}"
 
 
 class SimulatedModuloSensor(_SimulatedSensor):
@@ -291,10 +323,14 @@ class SimulatedModuloSensor(_SimulatedSensor):
             :func:`~torch_modulo.capture_modulo`).
         seed: seed of the shot/read noise generator; the same seed gives the same frames on every run.
         fpn_seed: seed of the fixed-pattern gain (default ``seed + 1``); fixed for the sensor's lifetime.
+        cfa: None, or the colour filter array of a colour sensor (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``):
+            RGB radiance is mosaicked first, the noise is drawn per photosite, and the stack holds mosaics with
+            the pattern in its metadata (:attr:`FrameStack.cfa`). Demosaic after unwrapping
+            (:func:`torch_modulo.cfa.demosaic`).
 
     Shape:
-        - Input: radiance (B, C, H, W) or (C, H, W); exposures (M,) or (B, M).
-        - Output: :class:`FrameStack` with moduli (B, M, C, H, W).
+        - Input: radiance (B, C, H, W) or (C, H, W) (C = 3 with ``cfa``); exposures (M,) or (B, M).
+        - Output: :class:`FrameStack` with moduli (B, M, C, H, W) (C = 1 with ``cfa``).
 
     Example:
         >>> sensor = SimulatedModuloSensor(bits=8, noise=None)
@@ -304,6 +340,9 @@ class SimulatedModuloSensor(_SimulatedSensor):
                 [24., 64.]])
         >>> stack.kind, stack.bits
         ('modulo', 8)
+        >>> colour = SimulatedModuloSensor(bits=8, cfa="RGGB")(torch.full((1, 3, 4, 4), 300.0), [1.0, 16.0])
+        >>> colour.moduli.shape, colour.cfa
+        (torch.Size([1, 2, 1, 4, 4]), 'RGGB')
     """
 
     _wrap = True
