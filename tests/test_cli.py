@@ -673,6 +673,122 @@ class TestSingleShotStacks:
         assert "holds 2 modulo frames; --single unwraps one modulo frame" in error and "--exposures 1" in error
 
 
+# ------------------------------------------------------------------------------------------ colour sensors
+
+
+def _colour_scene(path: Path, h: int = 32, w: int = 48) -> Path:
+    """A small smooth RGB scene (three gradients with different directions), dark near 0 in one corner."""
+    y, x = torch.meshgrid(torch.linspace(0, 1, h), torch.linspace(0, 1, w), indexing="ij")
+    rgb = torch.stack([0.01 + x + 0.5 * y, 0.01 + 0.8 * x + 0.3 * y, 0.01 + 0.5 * x + 0.8 * y])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_image(path, rgb)
+    return path
+
+
+class TestColourSensor:
+    def test_simulate_unwrap_multi_demosaic_tonemap(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        from torch_modulo import demosaic, mosaic
+
+        source = _colour_scene(tmp_path / "in" / "s.exr")
+        stacks, out = tmp_path / "stacks", tmp_path / "out"
+        assert _cli("simulate", source.parent, stacks, "--cfa", "RGGB") == 0  # noise on, exposures planned
+        assert _report(stacks, "simulate")["done"][0]["cfa"] == "RGGB"
+        stack = FileSensor(stacks / "s").read()
+        assert stack.cfa == "RGGB" and stack.moduli.shape[2:] == (1, 32, 48) and stack.num_exposures > 1
+        truth = read_image(stacks / "s" / "radiance.exr", dtype=torch.float64)
+        assert truth.shape == (3, 32, 48)  # the truth stays RGB
+        capsys.readouterr()
+        assert _cli("unwrap", stacks, out) == 0  # the pattern comes from the stack
+        restored, meta = read_image(out / "s.exr", with_metadata=True, dtype=torch.float64)
+        assert restored.shape == (3, 32, 48) and meta["cfa"] == "RGGB" and meta["demosaic"] == "malvar"
+        noise = NoiseModel(**stack.metadata["noise"])
+        expected = demosaic(unwrap_multi(stack.moduli, stack.exposures, 8, noise=noise), "RGGB")[0]
+        torch.testing.assert_close(restored.float(), expected)  # unwrapped first, then demosaiced
+        accuracy = _report(out, "unwrap")["done"][0]["accuracy"]  # RGB scored against the RGB truth
+        assert accuracy["median_relative_error"] < 0.08 and accuracy["gross_share"] < 0.005
+        assert "median relative error" in capsys.readouterr().err
+        assert _cli("tonemap", out, tmp_path / "png") == 0
+        assert read_image(tmp_path / "png" / "s.png").shape == (3, 32, 48)
+        # --no-demosaic: the restored mosaic, scored against the mosaicked truth
+        assert _cli("unwrap", stacks, tmp_path / "mosaic", "--no-demosaic") == 0
+        restored, meta = read_image(tmp_path / "mosaic" / "s.exr", with_metadata=True, dtype=torch.float64)
+        assert restored.shape == (1, 32, 48) and meta["cfa"] == "RGGB" and meta["demosaic"] == "none"
+        torch.testing.assert_close(demosaic(restored.float()[None], "RGGB")[0], expected)
+        accuracy = _report(tmp_path / "mosaic", "unwrap")["done"][0]["accuracy"]
+        rel = (restored - mosaic(truth, "RGGB")).abs() / mosaic(truth, "RGGB")
+        assert accuracy["median_relative_error"] == pytest.approx(float(rel.median()), rel=1e-3)
+
+    def test_single_shot_mosaic_is_exact_on_a_smooth_scene(self, tmp_path: Path) -> None:
+        from torch_modulo import mosaic
+
+        source = _colour_scene(tmp_path / "in" / "s.exr")
+        stacks, out = tmp_path / "single", tmp_path / "out"
+        args = ("--exposures", 1, "--noise", "none", "--cfa", "RGGB", "--scale", 1000)  # about 4 periods
+        assert _cli("simulate", source.parent, stacks, *args) == 0
+        assert FileSensor(stacks / "s").read().moduli.shape == (1, 1, 1, 32, 48)
+        truth = read_image(stacks / "s" / "radiance.exr", dtype=torch.float64)
+        assert float(truth.max()) > 4 * 256  # the frame wraps
+        assert _cli("unwrap", stacks, out, "--single", "--confidence") == 0
+        accuracy = _report(out, "unwrap")["done"][0]["accuracy"]
+        assert accuracy["exact_k"] == 1.0 and accuracy["psnr_db"] == math.inf  # exact on the mosaic
+        assert accuracy["colour_psnr_db"] > 40  # the demosaiced RGB against the RGB truth
+        restored, meta = read_image(out / "s.exr", with_metadata=True)
+        assert restored.shape == (3, 32, 48) and meta["cfa"] == "RGGB" and meta["solver"] == "default"
+        assert read_image(out / "s.confidence.exr").shape == (1, 32, 48)
+        assert _cli("unwrap", stacks, tmp_path / "mosaic", "--single", "--no-demosaic") == 0
+        restored = read_image(tmp_path / "mosaic" / "s.exr", dtype=torch.float64)
+        torch.testing.assert_close(restored, torch.floor(mosaic(truth, "RGGB")))
+
+    def test_cfa_for_modulus_images_outside_stacks(self, tmp_path: Path) -> None:
+        from torch_modulo import mosaic
+
+        rgb = read_image(_colour_scene(tmp_path / "scene.exr"), dtype=torch.float64) * 1000
+        counts = torch.floor(mosaic(rgb, "GRBG"))
+        (tmp_path / "camera").mkdir()
+        write_image(tmp_path / "camera" / "shot.png", torch.remainder(counts, 256), {"bits": 8}, dtype="uint8")
+        write_image(tmp_path / "camera" / "rgb.png", torch.remainder(torch.floor(rgb), 256), {"bits": 8}, dtype="uint8")
+        out = tmp_path / "out"
+        assert _cli("unwrap", tmp_path / "camera", out, "--single", "--cfa", "GRBG", "--no-demosaic") == 1
+        report = _report(out, "unwrap")
+        assert _names(report["done"]) == ["shot.png"]
+        assert (
+            "rgb.png is not a mosaic (cfa GRBG)" in report["failed"][0]["error"]
+            and "got 3 x 32 x 48" in (report["failed"][0]["error"])
+        )
+        torch.testing.assert_close(read_image(out / "shot.exr", dtype=torch.float64), counts)
+        (tmp_path / "camera" / "rgb.png").unlink()
+        assert _cli("unwrap", tmp_path / "camera", tmp_path / "rgb", "--single", "--cfa", "GRBG") == 0
+        restored, meta = read_image(tmp_path / "rgb" / "shot.exr", with_metadata=True)
+        assert restored.shape == (3, 32, 48) and meta["cfa"] == "GRBG"
+
+    def test_a_pattern_that_disagrees_with_the_stack_is_refused(self, tmp_path: Path) -> None:
+        source = _colour_scene(tmp_path / "in" / "s.exr")
+        for exposures, extra in (("auto", []), ("1", ["--single"])):
+            stacks, out = tmp_path / f"stacks{exposures}", tmp_path / f"out{exposures}"
+            assert (
+                _cli("simulate", source.parent, stacks, "--cfa", "RGGB", "--noise", "none", "--exposures", exposures)
+                == 0
+            )
+            assert _cli("unwrap", stacks, out, "--cfa", "BGGR", *extra) == 1
+            error = _report(out, "unwrap")["failed"][0]["error"]
+            assert "records the colour filter array 'RGGB' but --cfa BGGR was given" in error
+
+    def test_scenes_that_are_not_rgb_are_refused_per_file(self, tmp_path: Path) -> None:
+        (tmp_path / "in").mkdir()
+        write_image(tmp_path / "in" / "grey.exr", _scene(1, channels=1))
+        _colour_scene(tmp_path / "in" / "odd.exr", h=33)
+        out = tmp_path / "out"
+        assert _cli("simulate", tmp_path / "in", out, "--cfa", "BGGR", "--noise", "none") == 1
+        report = _report(out, "simulate")
+        assert _names(report["failed"]) == ["grey.exr"] and _names(report["done"]) == ["odd.exr"]
+        error = report["failed"][0]["error"]
+        assert "grey.exr is not an RGB scene (1 channel): --cfa BGGR simulates a colour sensor" in error
+        assert "cropped 33 x 48 to 32 x 48" in report["done"][0]["warnings"][0]
+        assert read_image(out / "odd" / "radiance.exr").shape == (3, 32, 48)
+        assert FileSensor(out / "odd").read().cfa == "BGGR"
+        assert _cli("simulate", tmp_path / "in" / "grey.exr", tmp_path / "grey") == 0  # without --cfa: as before
+
+
 class TestTonemapEncoding:
     def test_pngs_are_srgb_encoded_by_default(self, scenes: Path, tmp_path: Path) -> None:
         hdr = read_image(scenes / "a.exr")
@@ -792,6 +908,8 @@ BAD_OPTIONS = [
     (["unwrap", "{in}", "{out}", "--method", "paper", "--noise", "q16"], "--method paper decodes Eqs. 6-7 as printed"),
     (["unwrap", "{in}", "{out}", "--single", "--noise", "q16"], "--noise applies to multi shot only"),
     (["tonemap", "{in}", "{out}", "--srgb", "--no-srgb", "--depth", "12"], "invalid choice: 12"),
+    (["simulate", "{in}", "{out}", "--cfa", "RGBG"], "argument --cfa: invalid choice: 'RGBG'"),
+    (["unwrap", "{in}", "{out}", "--cfa", "rggb"], "argument --cfa: invalid choice: 'rggb'"),
 ]
 
 

@@ -192,6 +192,43 @@ class TestJobs:
         )
         assert "warnings" not in info and read_image(tmp_path / "r.png").shape == (3, 6, 8)
 
+    def test_colour_sensor_jobs(self, tmp_path: Path) -> None:
+        from torch_modulo.cfa import demosaic, mosaic
+
+        ramp = torch.exp2(torch.linspace(0, 12, 48)).view(1, 6, 8)
+        source = _write(tmp_path / "scene.exr", torch.cat([ramp, 0.5 * ramp, 0.25 * ramp]))
+        options = {
+            "bits": 8,
+            "exposures": [1.0, 64.0, 4096.0],
+            "noise": None,
+            "seed": 0,
+            "scale": "auto",
+            "format": "exr",
+            "truth": True,
+            "cfa": "GBRG",
+        }
+        info = simulate_job(Task("scene.exr", str(source), (str(tmp_path / "stack"),)), options)
+        assert info["cfa"] == "GBRG" and info["shape"] == [3, 6, 8]
+        stack = FileSensor(tmp_path / "stack").read()
+        assert stack.cfa == "GBRG" and stack.moduli.shape == (1, 3, 1, 6, 8)
+        truth = read_image(tmp_path / "stack" / "radiance.exr", dtype=torch.float64)
+        assert truth.shape == (3, 6, 8)
+        unwrap_options = {"single": False, "bits": None, "exposure": None, "method": "robust", "solver": None}
+        task = Task("stack", str(tmp_path / "stack"), (str(tmp_path / "r.exr"),))
+        info = unwrap_job(task, unwrap_options)  # the pattern from the stack; demosaiced by default
+        assert info["cfa"] == "GBRG" and info["shape"] == [3, 6, 8] and "accuracy" in info
+        counts = torch.floor(4096 * mosaic(truth, "GBRG")) / 4096  # noise-free: floor(tau_max E) / tau_max
+        torch.testing.assert_close(read_image(tmp_path / "r.exr", dtype=torch.float64), demosaic(counts, "GBRG"))
+        info = unwrap_job(task, {**unwrap_options, "demosaic": False})
+        assert info["shape"] == [1, 6, 8] and info["accuracy"]["median_relative_error"] < 1e-3
+        torch.testing.assert_close(read_image(tmp_path / "r.exr", dtype=torch.float64), counts)
+        with pytest.raises(ValueError, match="records the colour filter array 'GBRG' but --cfa RGGB was given"):
+            unwrap_job(task, {**unwrap_options, "cfa": "RGGB"})
+        grey = _write(tmp_path / "grey.exr", ramp)
+        with pytest.raises(ValueError, match=r"grey\.exr is not an RGB scene \(1 channel\)"):
+            simulate_job(Task("grey.exr", str(grey), (str(tmp_path / "g"),)), options)
+        assert not (tmp_path / "g").exists()
+
     def test_tonemap_options(self) -> None:
         assert tonemap_options("clahe", {"grid_size": [2, 2]}, srgb=True, depth=16) == {
             "op": "clahe",

@@ -1,4 +1,5 @@
-"""How the folder commands scale a scene, choose its exposures, and score a result against the stored truth.
+"""How the folder commands scale a scene, choose its exposures, and score a result against the stored truth; and,
+for colour sensors, which colour filter array a frame has and which scenes a colour sensor can capture.
 
 The rules are described in :mod:`torch_modulo.pipeline` (which re-exports :func:`plan_scene` and
 :func:`fit_scale`); this module keeps them apart from the jobs that apply them.
@@ -17,12 +18,17 @@ from torch_modulo.noise import PRESETS, NoiseModel, as_noise_model
 
 __all__ = [
     "NoiseSpec",
+    "colour_scene",
     "count_accuracy",
     "fit_scale",
+    "frame_cfa",
+    "matching_truth",
     "noise_model",
     "noise_name",
     "plan_scene",
     "radiance_accuracy",
+    "restored_colour",
+    "restored_confidence",
     "scene_stops",
     "unsafe_ratio_warnings",
 ]
@@ -211,3 +217,132 @@ def count_accuracy(
         "exact_k": float(exact_k_share(restored, reference, bits)[0]),
         "psnr_db": float(psnr(restored, reference, peak=max(float(reference.max()), 1.0))[0]),
     }
+
+
+# ------------------------------------------------------------------------------------------- colour sensors
+
+
+def colour_scene(image: torch.Tensor, cfa: str, source: object) -> tuple[torch.Tensor, list[str]]:
+    """The part of a (C, H, W) scene a colour sensor with pattern ``cfa`` captures, and a note when it was cropped.
+
+    The scene must be RGB; an odd height or width loses its last row or column (a mosaic holds whole 2 x 2 cells).
+
+    Raises:
+        ValueError: not three channels (the message names ``source`` and says to drop ``--cfa``), or a scene
+            smaller than one 2 x 2 cell.
+
+    Example:
+        >>> scene, notes = colour_scene(torch.ones(3, 5, 4), "RGGB", "a.exr")
+        >>> tuple(scene.shape), notes
+        ((3, 4, 4), ['cropped 5 x 4 to 4 x 4: a mosaic holds whole 2 x 2 cells (the truth is cropped too)'])
+    """
+    c, h, w = image.shape[-3:]
+    if c != 3:
+        raise ValueError(
+            f"{source} is not an RGB scene ({c} channel{'s' * (c != 1)}): --cfa {cfa} simulates a colour sensor, "
+            "whose filters need red, green and blue radiance; simulate grey scenes without --cfa"
+        )
+    even_h, even_w = h - h % 2, w - w % 2
+    if (even_h, even_w) == (h, w):
+        return image, []
+    if not (even_h and even_w):
+        raise ValueError(f"{source} is {h} x {w}: too small for a mosaic ({cfa}: whole 2 x 2 cells)")
+    note = f"cropped {h} x {w} to {even_h} x {even_w}: a mosaic holds whole 2 x 2 cells (the truth is cropped too)"
+    return image[..., :even_h, :even_w], [note]
+
+
+def frame_cfa(given: str | None, recorded: object, source: object, shape: Sequence[int]) -> str | None:
+    """The colour filter array of a frame: ``recorded`` (its stack's or metadata's) unless ``given`` (``--cfa``).
+
+    Args:
+        given: the pattern the user gave, or None.
+        recorded: the pattern the frame records, or None.
+        source: the frame's file or stack (named in errors).
+        shape: the frame's (C, H, W) shape.
+
+    Returns:
+        The pattern, or None for frames that are not mosaics.
+
+    Raises:
+        ValueError: ``given`` and ``recorded`` disagree (both named), an unknown pattern, or a frame that is not a
+            mosaic (one channel, an even height and width).
+
+    Example:
+        >>> frame_cfa(None, "RGGB", "stack", (1, 4, 6)), frame_cfa("GRBG", None, "a.png", (1, 4, 6))
+        ('RGGB', 'GRBG')
+    """
+    from torch_modulo.cfa import check_cfa
+
+    if given is not None and recorded is not None and given != recorded:
+        raise ValueError(
+            f"{source} records the colour filter array {recorded!r} but --cfa {given} was given: drop --cfa, "
+            f"or pass --cfa {recorded}"
+        )
+    if given is None and recorded is None:
+        return None
+    pattern = check_cfa(given, "--cfa") if given is not None else check_cfa(recorded, f"the cfa of {source}")
+    c, h, w = shape[-3:]
+    if c != 1 or h % 2 or w % 2:
+        raise ValueError(
+            f"{source} is not a mosaic (cfa {pattern}): a mosaic has one channel and an even height and width "
+            f"(whole 2 x 2 cells); got {c} x {h} x {w}"
+        )
+    return pattern
+
+
+def matching_truth(truth: torch.Tensor | None, shape: Sequence[int], cfa: str | None) -> torch.Tensor | None:
+    """The stored truth as a result of ``shape`` is scored against: as is, mosaicked (an RGB truth of a restored
+    mosaic), or None when it does not fit.
+
+    Example:
+        >>> rgb = torch.arange(3.0).view(3, 1, 1).expand(3, 2, 2)
+        >>> matching_truth(rgb, (1, 2, 2), "RGGB")[0].tolist()
+        [[0.0, 1.0], [1.0, 2.0]]
+    """
+    if truth is None:
+        return None
+    if tuple(truth.shape) == tuple(shape):
+        return truth
+    if cfa is not None and shape[0] == 1 and tuple(truth.shape) == (3, *shape[1:]):
+        from torch_modulo.cfa import mosaic
+
+        return mosaic(truth, cfa)
+    return None
+
+
+def restored_colour(
+    values: torch.Tensor, cfa: str | None, *, demosaic: bool = True
+) -> tuple[torch.Tensor, dict[str, Any]]:
+    """A restored mosaic (1, H, W) demosaiced to RGB (3, H, W) unless ``demosaic`` is False, and the output
+    metadata that says what was done. Values that are not a mosaic (``cfa`` None) are returned as they are.
+
+    Example:
+        >>> rgb, meta = restored_colour(torch.full((1, 2, 2), 5.0), "RGGB")
+        >>> tuple(rgb.shape), meta
+        ((3, 2, 2), {'cfa': 'RGGB', 'demosaic': 'malvar'})
+    """
+    if cfa is None:
+        return values, {}
+    if not demosaic:
+        return values, {"cfa": cfa, "demosaic": "none"}
+    from torch_modulo.cfa import DEMOSAIC_METHODS
+    from torch_modulo.cfa import demosaic as demosaic_counts
+
+    return demosaic_counts(values.unsqueeze(0), cfa)[0], {"cfa": cfa, "demosaic": DEMOSAIC_METHODS[0]}
+
+
+def restored_confidence(counts: torch.Tensor, bits: int, cfa: str | None) -> torch.Tensor:
+    """:func:`~torch_modulo.unwrap_confidence` of restored counts (C, H, W); of a mosaic, per colour plane
+    (photosites of one colour are each other's neighbours there), put back in place as (1, H, W).
+
+    Example:
+        >>> restored_confidence(torch.zeros(1, 4, 4), 8, "RGGB").unique().tolist()
+        [1.0]
+    """
+    from torch_modulo.singleshot import unwrap_confidence
+
+    if cfa is None:
+        return unwrap_confidence(counts, bits)
+    from torch_modulo.cfa import merge_planes, split_planes
+
+    return merge_planes(unwrap_confidence(split_planes(counts), bits))

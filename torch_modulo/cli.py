@@ -1,9 +1,9 @@
 """The ``torch-modulo`` command line: parse, call the library, report.
 
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
-    torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N]
+    torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N] [--cfa RGGB]
                                                     every HDR file in IN -> a modulo frame stack per scene in OUT
-    torch-modulo unwrap IN OUT [--single] [--noise stack]
+    torch-modulo unwrap IN OUT [--single] [--noise stack] [--cfa RGGB] [--no-demosaic]
                                                     frame stacks (or single modulus images) -> radiance EXRs
     torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs
 
@@ -26,6 +26,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from torch_modulo.cfa import CFA_PATTERNS
 from torch_modulo.pipeline import DEFAULT_NOISE, NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
 
 # The jobs live in torch_modulo.pipeline; they stay importable from here.
@@ -338,11 +339,14 @@ def _add_simulate(commands: Any) -> None:
             "were captured from (counts per unit exposure), the ground truth for training and scoring. By default "
             "(--exposures auto) each scene gets the exposures that plan_exposures plans for its own dynamic range, "
             "bit depth and noise model; one given exposure makes a single-shot stack whose frame wraps (for "
-            "`torch-modulo unwrap --single`)."
+            "`torch-modulo unwrap --single`). With --cfa the sensor is a colour sensor: RGB scenes are mosaicked "
+            "by its colour filter array and the frames are mosaics (one channel, the pattern in the metadata), "
+            "while radiance.exr stays RGB."
         ),
         epilog="examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
         "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
         "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
+        "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
         + _FOLDER_EPILOG.format(command="simulate"),
     )
     _add_folder_options(simulate, "folder of HDR radiance files (or one file)", "folder for the frame stacks")
@@ -395,6 +399,17 @@ def _add_simulate(commands: Any) -> None:
         help="also write radiance.exr, the scaled ground truth (default: on)",
     )
     simulate.add_argument("--nonfinite", choices=NONFINITE, default="replace", help=_NONFINITE_HELP)
+    simulate.add_argument(
+        "--cfa",
+        choices=CFA_PATTERNS,
+        default=None,
+        metavar="PATTERN",
+        help=f"capture with a colour sensor whose colour filter array is PATTERN ({', '.join(CFA_PATTERNS)}: the "
+        "top-left 2 x 2 cell read row by row): the frames are mosaics of the RGB radiance, noise per photosite, "
+        "with the pattern in the metadata; scenes that are not RGB fail (each named in the report), an odd height "
+        "or width loses its last row or column; radiance.exr stays RGB (default: none, one frame channel per "
+        "scene channel)",
+    )
 
 
 def _add_unwrap(commands: Any) -> None:
@@ -415,12 +430,17 @@ def _add_unwrap(commands: Any) -> None:
             "model. Where a stack holds its ground truth (radiance.exr, as simulate writes it) the report scores "
             "each result against it (multi shot: median relative error and the share of values more than 50% "
             "off; single shot: exact rollover counts and PSNR) and the summary line gives the means; the "
-            "decoder's warnings (exposure ratios too large for the noise) are printed and kept in the report."
+            "decoder's warnings (exposure ratios too large for the noise) are printed and kept in the report. "
+            "Mosaics of a colour sensor (the pattern recorded in the stack, or --cfa) are unwrapped first (multi "
+            "shot per photosite, single shot with unwrap_single(..., cfa=...)) and then demosaiced to RGB radiance "
+            "(torch_modulo.cfa.demosaic), which is scored against the RGB truth."
         ),
         epilog="examples:\n  torch-modulo unwrap stacks/ radiance/\n"
         "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
         "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
         "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
+        "  torch-modulo unwrap colour/ radiance/                   # mosaics (simulate --cfa): demosaiced RGB\n"
+        "  torch-modulo unwrap camera/ radiance/ --single --bits 8 --cfa RGGB   # mosaicked modulus images\n"
         + _FOLDER_EPILOG.format(command="unwrap"),
     )
     _add_folder_options(
@@ -460,7 +480,8 @@ def _add_unwrap(commands: Any) -> None:
         "--confidence",
         action="store_true",
         help="with --single: also write OUT/<image>.confidence.exr, unwrap_confidence's map (1: the rollover count "
-        "is determined by the image; 0: it was guessed, take a second exposure there)",
+        "is determined by the image; 0: it was guessed, take a second exposure there; of a mosaic, per colour "
+        "plane, one value per photosite)",
     )
     unwrap.add_argument(
         "--method",
@@ -474,6 +495,22 @@ def _add_unwrap(commands: Any) -> None:
         "unwrap_single, guided (path following, channels together; the default), fast (the paper's graph cut on "
         "a cheaper schedule) or paper (Eqs. 3-5 from k = 0, slow); --solver is its deprecated former name "
         "(--single only)",
+    )
+    unwrap.add_argument(
+        "--cfa",
+        choices=CFA_PATTERNS,
+        default=None,
+        metavar="PATTERN",
+        help=f"the colour filter array of mosaicked frames ({', '.join(CFA_PATTERNS)}) where the files do not "
+        "record one, e.g. a colour camera's modulus images; a stack or image that records another pattern fails "
+        "(default: the pattern each stack or image records; none: not mosaics)",
+    )
+    unwrap.add_argument(
+        "--demosaic",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="demosaic restored mosaics to RGB radiance, (3, H, W) (default: on); --no-demosaic writes the restored "
+        "mosaic, (1, H, W), with the pattern in its metadata (scored against the mosaicked truth)",
     )
 
 
@@ -567,6 +604,8 @@ def _simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) ->
         "format": args.format,
         "truth": args.truth,
     }
+    if args.cfa is not None:  # only when given: outputs completed without it stay complete
+        options["cfa"] = args.cfa
     return _with_nonfinite(options, args.nonfinite)
 
 
@@ -608,7 +647,7 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
             choices = ", ".join(repr(r) for r in _MULTI_RULES)
             sub.error(f"argument --method/--solver: invalid choice: {args.method!r} (choose from {choices})")
         rule = args.method
-    return {
+    options = {
         "single": args.single,
         "bits": args.bits,
         "exposure": args.exposure,
@@ -619,6 +658,12 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
         # Graph cuts inside each job use processes of their own only when the batch itself runs one at a time.
         "_solver_workers": None if args.workers == 1 else 1,
     }
+    # Only when not the default: outputs completed before these options existed stay complete.
+    if args.cfa is not None:
+        options["cfa"] = args.cfa
+    if not args.demosaic:
+        options["demosaic"] = False
+    return options
 
 
 def _tonemap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
@@ -721,7 +766,10 @@ def _accuracy_summary(done: Sequence[dict[str, Any]]) -> str:
 
     what = f"against the stored truth, mean over {len(scored)} result{'s' * (len(scored) > 1)}:"
     if "exact_k" in scored[0]:
-        return f"{what} exact rollover counts {100 * mean('exact_k'):.2f}%, PSNR {mean('psnr_db'):.1f} dB"
+        line = f"{what} exact rollover counts {100 * mean('exact_k'):.2f}%, PSNR {mean('psnr_db'):.1f} dB"
+        if all("colour_psnr_db" in s for s in scored):
+            line += f", demosaiced colour PSNR {mean('colour_psnr_db'):.1f} dB"
+        return line
     return (
         f"{what} median relative error {100 * mean('median_relative_error'):.2f}%, values more than 50% off "
         f"{100 * mean('gross_share'):.3f}%"

@@ -55,12 +55,17 @@ import torch
 
 from torch_modulo._checks import check_choice, check_flag
 from torch_modulo._scene_rules import (
+    colour_scene,
     count_accuracy,
     fit_scale,
+    frame_cfa,
+    matching_truth,
     noise_model,
     noise_name,
     plan_scene,
     radiance_accuracy,
+    restored_colour,
+    restored_confidence,
     unsafe_ratio_warnings,
 )
 from torch_modulo.io import read_image
@@ -299,6 +304,8 @@ def folder_tasks(
 
 
 # ------------------------------------------------------------------------------------------------ jobs
+# (This file is a little over 600 lines: the three jobs share the reading and scoring rules above; the rules
+# themselves live in torch_modulo/_scene_rules.py.)
 
 
 def scene_seed(seed: int, name: str) -> int:
@@ -316,7 +323,11 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
 
     Options: ``bits``, ``exposures`` (``"auto"``: :func:`plan_scene`; or a list), ``noise`` (None, a preset name
     or :class:`~torch_modulo.sensors.NoiseModel` fields), ``seed``, ``scale`` (``"auto"`` or a number),
-    ``format``, ``truth`` and, optionally, ``nonfinite``. The scaling rules are in the module docstring.
+    ``format``, ``truth`` and, optionally, ``nonfinite`` and ``cfa``. The scaling rules are in the module docstring.
+
+    With ``cfa`` (``"RGGB"``, ``"BGGR"``, ``"GRBG"`` or ``"GBRG"``) the sensor is a colour sensor: the frames are
+    mosaics (1, H, W) with the pattern in the stack's metadata, and the truth stays RGB. A scene that is not RGB is
+    refused; an odd height or width loses its last row or column (noted in the report).
     """
     from torch_modulo.batch import atomic_output_dir
     from torch_modulo.io import write_image
@@ -328,8 +339,12 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     image, counts = load_radiance(task.source, nonfinite=nonfinite, dtype=torch.float64, with_counts=True)
     if not float(image.max()) > 0:
         raise ValueError(f"{task.source} is black (maximum {float(image.max())}): there is nothing to capture")
+    cfa = options.get("cfa")
     notes: list[str] = []
     facts: dict[str, Any] = {}
+    if cfa is not None:
+        image, notes = colour_scene(image, cfa, task.source)
+        facts["cfa"] = cfa
     if options["exposures"] == "auto":
         taus, scale, facts["stops"] = plan_scene(image, bits, noise, scale=options["scale"])
         facts["scaling"] = "auto exposures (protocol N)"
@@ -342,7 +357,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     # Round to float32 first: radiance.exr (float32) then holds exactly the radiance the frames were captured from.
     radiance = (image * scale).float().double()
     seed = scene_seed(int(options["seed"]), task.name)
-    stack = SimulatedModuloSensor(bits, noise, seed=seed)(radiance.unsqueeze(0), taus)
+    stack = SimulatedModuloSensor(bits, noise, seed=seed, cfa=cfa)(radiance.unsqueeze(0), taus)
     metadata = {
         **stack.metadata,
         "source": task.name,
@@ -353,7 +368,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         **facts,
     }
     dtype = torch.float32 if bits <= 24 else torch.float64
-    stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind)
+    stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind, cfa=stack.cfa)
     with atomic_output_dir(task.outputs[0]) as folder:
         write_frames(stack, folder, format=options["format"])
         if options["truth"]:
@@ -395,20 +410,19 @@ def _read_stack(source: str, bits: int | None) -> FrameStack:
     return stack
 
 
-def _truth(folder: str | os.PathLike[str], shape: Sequence[int]) -> torch.Tensor | None:
-    """The stack's stored ground truth (float64), or None when it is absent or of another shape."""
+def _truth(folder: str | os.PathLike[str]) -> torch.Tensor | None:
+    """The stack's stored ground truth (float64), or None when it is absent (see :func:`matching_truth`)."""
     path = Path(folder) / TRUTH_FILE
-    if not path.is_file():
-        return None
-    truth = read_image(path, dtype=torch.float64)
-    return truth if tuple(truth.shape) == tuple(shape) else None
+    return read_image(path, dtype=torch.float64) if path.is_file() else None
 
 
 def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, Any], dict[str, Any]]:
-    """Multi shot: rollover counting (noise-aware with a noise model) or the merge of an intensity stack."""
+    """Multi shot: rollover counting (noise-aware with a noise model) or the merge of an intensity stack; mosaics
+    are unwrapped per photosite, then demosaiced."""
     from torch_modulo.multishot import merge_intensity, unwrap_multi
 
     stack = _read_stack(task.source, options["bits"])
+    cfa = frame_cfa(options.get("cfa"), stack.cfa, task.source, stack.moduli.shape[-3:])
     choice = options.get("noise", "stack")
     noise = noise_model(stack.metadata.get("noise") if choice == "stack" else choice)
     if noise is not None and noise.is_noiseless:
@@ -429,6 +443,7 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
             warnings.simplefilter("always")
             radiance = unwrap_multi(stack.moduli, stack.exposures, stack.bits, rule, noise=noise)[0]
         notes += [str(w.message) for w in caught]
+    radiance, colour = restored_colour(radiance, cfa, demosaic=options.get("demosaic", True))
     metadata = {
         "source": task.name,
         "bits": stack.bits,
@@ -437,11 +452,12 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
         "noise": noise.to_dict() if noise is not None else None,
         "kind": stack.kind,
         "unit": "counts per unit exposure",
+        **colour,
     }
     if "radiance_scale" in stack.metadata:
         metadata["radiance_scale"] = stack.metadata["radiance_scale"]
     info: dict[str, Any] = {"noise": noise_name(noise)}
-    truth = _truth(task.source, radiance.shape)
+    truth = matching_truth(_truth(task.source), radiance.shape, cfa)
     if truth is not None:
         info["accuracy"] = radiance_accuracy(radiance, truth)
     if notes:
@@ -449,8 +465,11 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
     return radiance, metadata, info
 
 
-def _single_frame(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, int, float, torch.Tensor | None]:
-    """The modulus image ``unwrap --single`` unwraps, its bit depth and exposure, and the truth when stored."""
+def _single_frame(
+    task: Task, options: Mapping[str, Any]
+) -> tuple[torch.Tensor, int, float, torch.Tensor | None, str | None]:
+    """The modulus image ``unwrap --single`` unwraps, its bit depth, exposure, stored truth (or None) and colour
+    filter array (or None)."""
     if Path(task.source).is_dir():  # a frame stack of one exposure, as `simulate --exposures T` writes
         stack = _read_stack(task.source, options["bits"])
         if stack.num_exposures != 1 or stack.kind != "modulo":
@@ -461,7 +480,8 @@ def _single_frame(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
             )
         image = stack.moduli[0, 0]
         exposure = float(stack.exposure_matrix()[0, 0])
-        return image, stack.bits, exposure, _truth(task.source, image.shape)
+        cfa = frame_cfa(options.get("cfa"), stack.cfa, task.source, image.shape)
+        return image, stack.bits, exposure, _truth(task.source), cfa
     image, meta = read_image(task.source, with_metadata=True)
     bits = options["bits"]
     if bits is None:
@@ -469,16 +489,19 @@ def _single_frame(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
         if bits is None:
             raise ValueError(f"no bit depth in the metadata of {task.source}: pass --bits")
     exposure = options["exposure"] or meta.get("exposure") or 1.0
-    return image, int(bits), float(exposure), None
+    cfa = frame_cfa(options.get("cfa"), meta.get("cfa"), task.source, image.shape)
+    return image, int(bits), float(exposure), None, cfa
 
 
 def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, Any], dict[str, Any]]:
     from torch_modulo.io import write_image
-    from torch_modulo.singleshot import unwrap_confidence, unwrap_single
+    from torch_modulo.metrics import psnr
+    from torch_modulo.singleshot import unwrap_single
 
-    image, bits, exposure, truth = _single_frame(task, options)
+    image, bits, exposure, truth, cfa = _single_frame(task, options)
     method = {"method": options["solver"]} if options["solver"] is not None else {}
-    counts = unwrap_single(image.unsqueeze(0), bits, workers=options["_solver_workers"], **method)[0]
+    counts = unwrap_single(image.unsqueeze(0), bits, workers=options["_solver_workers"], cfa=cfa, **method)[0]
+    radiance, colour = restored_colour(counts.double() / exposure, cfa, demosaic=options.get("demosaic", True))
     metadata = {
         "source": task.name,
         "bits": bits,
@@ -486,14 +509,24 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
         "method": "single",
         "solver": options["solver"] or "default",
         "unit": "counts per unit exposure",
+        **colour,
     }
     if options.get("confidence"):
-        confidence = unwrap_confidence(counts.double(), bits)
+        confidence = restored_confidence(counts.double(), bits, cfa)
         write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})
     info: dict[str, Any] = {}
-    if truth is not None:
-        info["accuracy"] = count_accuracy(counts, image, truth, exposure, bits)
-    return counts.double() / exposure, metadata, info
+    counts_truth = matching_truth(truth, counts.shape, cfa)
+    if counts_truth is not None:
+        scored = (counts, image, counts_truth)
+        if cfa is not None:  # at the photosites, each colour plane with its own global offset (as each channel)
+            from torch_modulo.cfa import split_planes
+
+            scored = tuple(split_planes(x) for x in scored)
+        info["accuracy"] = count_accuracy(*scored, exposure, bits)
+        if cfa is not None and truth is not None and radiance.shape == truth.shape and radiance.shape[0] == 3:
+            peak = max(float(truth.max()), 1.0 / exposure)
+            info["accuracy"]["colour_psnr_db"] = float(psnr(radiance, truth, peak=peak)[0])
+    return radiance, metadata, info
 
 
 def unwrap_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
@@ -503,20 +536,31 @@ def unwrap_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     metadata, else 1), ``method`` (the multi-shot rule), ``noise`` (multi shot: ``"stack"``, the default, decodes
     with the noise model recorded in the stack's metadata, noise-free where there is none; None: noise-free; or a
     preset name or :class:`~torch_modulo.sensors.NoiseModel` fields), ``solver`` (the single-shot method; None:
-    the default), ``confidence`` and ``_solver_workers`` (processes of the single-shot solver).
+    the default), ``confidence``, ``_solver_workers`` (processes of the single-shot solver) and, optionally,
+    ``cfa`` and ``demosaic``.
 
     With ``single``, the input is a modulus image or a frame stack of one exposure (as ``simulate`` writes it).
     Where a stack holds its ground truth (:data:`TRUTH_FILE`), the result is scored against it: single shot by
     the share of exact rollover counts and the PSNR of the counts (:func:`torch_modulo.metrics.exact_k_share`,
     :func:`torch_modulo.metrics.psnr`), multi shot by the median relative error and the share of values more
     than 50% off. The scores and the decoder's warnings are in the returned info (the report).
+
+    Mosaics of a colour sensor: the pattern is the stack's (:attr:`~torch_modulo.sensors.FrameStack.cfa`) or the
+    image's metadata's, or the option ``cfa`` (a pattern that disagrees with the recorded one is refused). The
+    mosaic is unwrapped (multi shot per photosite, single shot with ``unwrap_single(..., cfa=...)``), then
+    demosaiced (:func:`torch_modulo.cfa.demosaic`) to RGB radiance (3, H, W); with ``demosaic`` False the
+    restored mosaic (1, H, W) is written instead. Single shot scores the rollover counts at the photosites
+    (against the mosaicked truth, each of the four colour planes with its own global offset, as the channels of an
+    RGB image) and adds ``colour_psnr_db``, the PSNR of the demosaiced radiance against the RGB truth; multi shot
+    scores what it writes, RGB against the RGB truth (a mosaic against the mosaicked truth).
     """
     from torch_modulo.io import write_image
 
     job = _unwrap_single_job if options["single"] else _unwrap_stack
     radiance, metadata, info = job(task, options)
     write_image(task.outputs[0], radiance.float(), metadata)
-    return {"shape": list(radiance.shape), "method": metadata["method"], **info}
+    colour = {"cfa": metadata["cfa"]} if "cfa" in metadata else {}
+    return {"shape": list(radiance.shape), "method": metadata["method"], **colour, **info}
 
 
 def _tuples(params: Mapping[str, Any]) -> dict[str, Any]:
