@@ -11,12 +11,18 @@ the methods of :data:`METHODS`:
   (:mod:`torch_modulo.singleshot.graphcut`) on a cheaper schedule: start from path following when the wrapped
   image is smooth (no residues), else from ``k = 0``; global moves until one gains less than ``rel_tol`` of the
   energy; then local moves in tiles.
+- ``"learned"``: a small network predicts the rollover jump of every neighbour pair, an exact integer decoder
+  (most likely spanning tree, optionally min-cut moves) turns it into ``k`` (:mod:`torch_modulo.singleshot.learned`).
 - ``"paper"``: the paper's algorithm as published: from ``k = 0``, moves ``k <- k + delta`` while the energy
   drops, then step ``sigma``; non-representable pair terms lose their pairwise edge (PUMA).
+- ``"lsq"``: least-squares integration of the wrapped differences with the DCT (Ghiglia and Romero 1994), a few
+  rounds of reweighting, then snapped to ``I_m + k 2^N``; in torch on the input's device, the whole batch at once
+  (:mod:`torch_modulo.singleshot.lsq`).
 
 Methods are entries of :data:`torch_modulo.singleshot.methods.REGISTRY` (solver, options, whether the channels of
 an image are solved together). The images and channels of a batch are solved in worker processes
-(:mod:`torch_modulo.singleshot.workers`). docs/singleshot.md has the measurements.
+(:mod:`torch_modulo.singleshot.workers`), except by the methods with a tensor solver (``"lsq"``), which solve the
+batch on its device. docs/singleshot.md has the measurements.
 
 Unwrapping fixes ``k`` up to one constant per image and channel; the output puts the darkest large connected
 region at ``k = 0`` and no pixel below it (``k >= 0``, :mod:`torch_modulo.singleshot.anchor`).
@@ -43,9 +49,10 @@ from torch_modulo._checks import (
     check_modulus,
     check_tensor,
 )
+from torch_modulo.cfa import check_cfa, interpolate_wrapped, mosaic
 from torch_modulo.singleshot.confidence import UnwrapConfidence, unwrap_confidence
 from torch_modulo.singleshot.energy import Potential, UnwrapEnergy, is_representable, potential, unwrap_energy
-from torch_modulo.singleshot.methods import METHODS, REGISTRY, SolverSpec, make_spec
+from torch_modulo.singleshot.methods import METHODS, REGISTRY, SolverSpec, make_spec, solve_on_device
 from torch_modulo.singleshot.workers import check_workers, run_planes, shutdown_workers
 
 __all__ = [
@@ -103,13 +110,18 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     lead = (1, 1, *modulus.shape)[-4:-2]  # (B, C), with B = 1 and C = 1 filled in for unbatched inputs
     b, c = int(lead[0]), int(lead[1])
     batch = modulus.reshape(b, c, h, w)
-    planes = list(batch.detach().to("cpu", torch.float64).reshape(b * c, h, w).numpy().astype(np.int64))
-    results = run_planes(planes, spec, workers, group=c if REGISTRY[spec.method].joint_channels else 1)
-    if results:
-        restored = torch.from_numpy(np.stack([r for r, _ in results]).astype(np.float64))
+    if REGISTRY[spec.method].solve_tensor is not None:  # solved where the tensor lies, anchored on the CPU
+        results = solve_on_device(batch, spec)
     else:
-        restored = torch.zeros(0, h, w, dtype=torch.float64)
-    peak = float(restored.max()) if restored.numel() else 0.0
+        # One int64 copy, whose planes the tasks view (no float64 copy, no stacked copy).
+        planes = batch.detach().to("cpu").to(torch.int64).reshape(b * c, h, w).numpy()
+        results = run_planes(planes, spec, workers, group=c if REGISTRY[spec.method].joint_channels else 1)
+        del planes
+    # Filled plane by plane, in the output's dtype: no stacked int64 or float64 copy of the whole batch.
+    restored = torch.empty(len(results), h, w, dtype=modulus.dtype)
+    for plane, (r, _) in zip(restored, results, strict=True):
+        plane.copy_(torch.from_numpy(r.astype(np.float64)))
+    peak = max((float(r.max()) for r, _ in results if r.size), default=0.0)
     limit = 2 ** (MAX_BITS.get(modulus.dtype, 53) + 1)
     if peak > limit:
         warnings.warn(
@@ -117,7 +129,7 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
             "use float32 or float64 for exact counts",
             stacklevel=3,
         )
-    out = restored.reshape(modulus.shape).to(device=modulus.device, dtype=modulus.dtype)
+    out = restored.reshape(modulus.shape).to(device=modulus.device)
     infos = [i for _, i in results]
 
     def grid(key: str, dtype: torch.dtype) -> torch.Tensor:
@@ -134,6 +146,23 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     return out, info
 
 
+def _solve_mosaic(
+    modulus: torch.Tensor, spec: SolverSpec, workers: int | None, cfa: str
+) -> tuple[torch.Tensor, SingleShotInfo]:
+    """Unwrap a mosaic of the colour filter array ``cfa``: its wrapped RGB interpolated on the circle, solved at full
+    resolution as one colour image, then the photosites' own rollover counts."""
+    check_cfa(cfa)
+    check_floating(modulus, "modulus")
+    check_image_shape(modulus, "modulus", 2, 4)
+    if modulus.dim() > 2 and modulus.shape[-3] != 1:
+        raise ValueError(
+            f"modulus must be a mosaic with cfa={cfa!r}, (B, 1, H, W), (1, H, W) or (H, W); got {tuple(modulus.shape)}"
+        )
+    guide = interpolate_wrapped(modulus if modulus.dim() > 2 else modulus[None], cfa, spec.params.bits)
+    out, info = _solve(guide, spec, workers)
+    return mosaic(out, cfa).reshape(modulus.shape), info
+
+
 def unwrap_single(
     modulus: torch.Tensor,
     bits: int = 8,
@@ -147,6 +176,7 @@ def unwrap_single(
     max_iter: int = 1000,
     workers: int | None = None,
     return_info: bool = False,
+    cfa: str | None = None,
     **options: Any,
 ) -> torch.Tensor | tuple[torch.Tensor, SingleShotInfo]:
     """Recover the counts from one modulus image (paper Sec. 4, Eqs. 3-5).
@@ -165,7 +195,9 @@ def unwrap_single(
         bits: sensor bit depth ``N``.
         method: one of :data:`METHODS`: ``"guided"`` (default: path following without a graph cut, the channels
             of an image together), ``"fast"`` (the paper's energy and moves on a cheaper schedule) or
-            ``"paper"`` (the published algorithm as printed, from ``k = 0``).
+            ``"paper"`` (the published algorithm as printed, from ``k = 0``); ``"learned"`` (a small network's
+            jump probabilities per neighbour pair, decoded exactly: :mod:`torch_modulo.singleshot.learned`);
+            ``"lsq"`` (least squares with the DCT and reweighting, in torch on ``modulus``'s device).
         neighborhood: 8 (the paper) or 4.
         a1: slope of the linear part of ``V`` (Eq. 5).
         a2: curvature of the quadratic part of ``V``.
@@ -175,13 +207,29 @@ def unwrap_single(
         workers: worker processes; ``None`` uses ``min(planes, os.cpu_count())`` when the job is large enough to
             pay for a pool, else runs in-process; 1 always runs in-process, and so does any value inside a
             daemonic process (a DataLoader worker, say). Scripts that use a pool need the usual
-            ``if __name__ == "__main__":`` guard.
+            ``if __name__ == "__main__":`` guard. ``"lsq"`` uses none: it solves the batch on its device.
         return_info: also return a :class:`SingleShotInfo` (energy per iteration, iteration counts, timings).
+        cfa: None, or the colour filter array of a mosaic (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``):
+            ``modulus`` is then (B, 1, H, W), (1, H, W) or (H, W) with an even height and width. Its wrapped colours
+            are interpolated on the circle to full resolution (:func:`torch_modulo.cfa.interpolate_wrapped`), that
+            RGB image is unwrapped (the methods that solve channels together share one tree across the colours),
+            and the restored mosaic keeps each photosite's own count; the info has one entry per colour (C = 3).
+            Demosaic the restored counts (:func:`torch_modulo.cfa.demosaic`), never the modulus.
         **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
-            ``"auto"``), ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase).
+            ``"auto"``), ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase),
+            ``tile_pixels`` (default ``2**22``: larger images are solved in overlapping tiles of at most that many
+            pixels, stitched on their overlaps, :mod:`torch_modulo.singleshot.tiles`; 0 never tiles).
             ``"guided"``: ``colour`` (default True: the channels of an image share one tree; False: each channel
             alone), ``denoise`` (default 0: the standard deviation in pixels of a Gaussian applied to the wrapped
-            image's phasor first; about 0.7 for frames with noise in the low bits).
+            image's phasor first; about 0.7 for frames with noise in the low bits), ``tile_pixels`` (default
+            ``2**22``: larger images build their spanning tree in blocks of at most that many pixels, which needs
+            less memory and gives a minimum spanning tree of the same pairs; 0: the whole image at once).
+            ``"learned"``: ``weights``
+            (default None: the weights shipped in the package; or a weights file), ``max_cuts`` (default 0: the
+            most likely tree alone; more: binary moves weighing every pair's probability after it). ``"lsq"``:
+            ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),
+            ``cg_iterations`` (default 10: conjugate-gradient steps per round), ``colour`` (default True: the
+            channels of an image share their weights; False: each channel alone).
 
     Returns:
         The restored counts ``I_m + k 2**bits``: same shape, dtype and device as ``modulus``; with
@@ -200,7 +248,8 @@ def unwrap_single(
     """
     spec = make_spec(bits, method, neighborhood, a1, a2, x0, sigma, max_iter, options)
     check_flag(return_info, "return_info")
-    out, info = _solve(modulus, spec, check_workers(workers))
+    workers = check_workers(workers)
+    out, info = _solve(modulus, spec, workers) if cfa is None else _solve_mosaic(modulus, spec, workers, cfa)
     return (out, info) if return_info else out
 
 
@@ -209,7 +258,7 @@ class SingleShotUnwrap(nn.Module):
 
     Args:
         bits: sensor bit depth ``N``.
-        method: ``"guided"`` (default), ``"fast"`` or ``"paper"``.
+        method: one of :data:`METHODS` (see :func:`unwrap_single`); ``"guided"`` by default.
         neighborhood: 8 (the paper) or 4.
         a1: slope of the linear part of ``V``.
         a2: curvature of the quadratic part of ``V``.
@@ -217,6 +266,7 @@ class SingleShotUnwrap(nn.Module):
         sigma: the larger step (paper: 2).
         max_iter: the most global minimum cuts per plane.
         workers: worker processes (see :func:`unwrap_single`).
+        cfa: None, or the colour filter array of mosaicked input (see :func:`unwrap_single`).
         **options: method options (see :func:`unwrap_single`).
 
     Shape:
@@ -241,6 +291,7 @@ class SingleShotUnwrap(nn.Module):
         sigma: int = 2,
         max_iter: int = 1000,
         workers: int | None = None,
+        cfa: str | None = None,
         **options: Any,
     ) -> None:
         super().__init__()
@@ -248,6 +299,7 @@ class SingleShotUnwrap(nn.Module):
         self.workers = check_workers(workers)
         self.bits = self.spec.params.bits
         self.method = method
+        self.cfa = check_cfa(cfa) if cfa is not None else None
 
     def forward(self, modulus: torch.Tensor) -> torch.Tensor:
         p = self.spec.params
@@ -262,5 +314,6 @@ class SingleShotUnwrap(nn.Module):
             sigma=self.spec.sigma,
             max_iter=self.spec.max_iter,
             workers=self.workers,
+            cfa=self.cfa,
             **dict(self.spec.options),
         )

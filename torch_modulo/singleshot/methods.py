@@ -9,6 +9,10 @@ A solver takes a group of planes: ``(moduli (G, H, W) int64, spec, one MoveStats
 (G, H, W) int64``, where the group is one plane for the methods that solve every channel alone and all channels
 of an image for the methods with ``joint_channels``. It may leave ``k`` with any global constant:
 :func:`solve_group` anchors every plane afterwards (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
+
+A method may also have a tensor solver, ``(moduli (B, C, H, W) floating tensor, spec) -> k (B, C, H, W) int64``
+on the input's device (``solve_tensor``): :func:`~torch_modulo.singleshot.unwrap_single` then hands it the whole
+batch where it lies, with no worker pool, and :func:`solve_on_device` anchors the result on the CPU.
 """
 
 from __future__ import annotations
@@ -20,13 +24,17 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
+import torch
 
 from torch_modulo._checks import check_choice, check_flag, check_int, check_real
 from torch_modulo.singleshot.anchor import anchor_k
 from torch_modulo.singleshot.energy import EnergyParams
 from torch_modulo.singleshot.graphcut import MoveStats, plane_energy, solve_fast, solve_pixels
 from torch_modulo.singleshot.grid import pair_offsets
+from torch_modulo.singleshot.learned import LEARNED_OPTIONS, solve_learned, solve_learned_tensor
+from torch_modulo.singleshot.lsq import LSQ_OPTIONS, solve_lsq, solve_lsq_tensor
 from torch_modulo.singleshot.pathfollow import quality_guided_colour_k, quality_guided_k, residue_density
+from torch_modulo.singleshot.tiles import TILE_PIXELS, check_tile_pixels, tiled
 
 __all__ = [
     "AUTO_RESIDUES",
@@ -38,6 +46,7 @@ __all__ = [
     "fast_start",
     "make_spec",
     "solve_group",
+    "solve_on_device",
     "solve_plane",
 ]
 
@@ -92,6 +101,9 @@ class SolverSpec:
 #: ``(moduli (G, H, W) int64, spec, one MoveStats per plane) -> restored (G, H, W) int64``.
 GroupSolver = Callable[[np.ndarray, SolverSpec, list[MoveStats]], np.ndarray]
 
+#: ``(moduli (B, C, H, W) floating tensor, spec) -> k (B, C, H, W) int64``, on the input's device, not anchored.
+TensorSolver = Callable[[torch.Tensor, SolverSpec], torch.Tensor]
+
 
 @dataclass(frozen=True)
 class Method:
@@ -101,11 +113,14 @@ class Method:
         solve: the group solver (see the module docstring).
         options: the method's options by name.
         joint_channels: the solver takes all channels of an image at once (else one plane at a time).
+        solve_tensor: a solver of whole batches on their device, used by ``unwrap_single`` instead of ``solve``
+            (which then serves :func:`solve_group` alone).
     """
 
     solve: GroupSolver
     options: Mapping[str, Option] = field(default_factory=dict)
     joint_channels: bool = False
+    solve_tensor: TensorSolver | None = None
 
 
 def _per_plane(solver: Callable[[np.ndarray, SolverSpec, MoveStats], np.ndarray]) -> GroupSolver:
@@ -167,11 +182,16 @@ def _solve_guided(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) 
     p = spec.params
     start = time.perf_counter()
     denoise = float(spec.option("denoise"))
+    tile_pixels = int(spec.option("tile_pixels"))  # larger images build the tree in blocks (less memory)
     if spec.option("colour"):
-        k = quality_guided_colour_k(moduli, p.bits, denoise)
+        k = quality_guided_colour_k(moduli, p.bits, denoise, tile_pixels)
     else:
-        k = np.stack([quality_guided_colour_k(m[None], p.bits, denoise)[0] for m in moduli])
-    restored = moduli + p.period * k
+        k = np.empty(moduli.shape, dtype=np.int64)
+        for ci, m in enumerate(moduli):
+            k[ci] = quality_guided_colour_k(m[None], p.bits, denoise, tile_pixels)[0]
+    restored = k  # moduli + k 2**bits, in place
+    restored *= p.period
+    restored += moduli
     for plane, st in zip(restored, stats, strict=True):
         st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
         st.tick("guided", start)
@@ -198,18 +218,34 @@ REGISTRY: Mapping[str, Method] = MappingProxyType(
     {
         "guided": Method(
             solve=_solve_guided,
-            options={"colour": Option(True, check_flag), "denoise": Option(0.0, _check_nonnegative)},
+            options={
+                "colour": Option(True, check_flag),
+                "denoise": Option(0.0, _check_nonnegative),
+                "tile_pixels": Option(TILE_PIXELS, check_tile_pixels),
+            },
             joint_channels=True,
         ),
         "fast": Method(
-            solve=_per_plane(_solve_fast),
+            solve=tiled(_per_plane(_solve_fast)),  # in overlapping tiles above tile_pixels
             options={
                 "init": Option("auto", _check_init),
                 "rel_tol": Option(3e-4, _check_nonnegative),
                 "tile": Option(64, _check_tile),
+                "tile_pixels": Option(TILE_PIXELS, check_tile_pixels),
             },
         ),
         "paper": Method(solve=_per_plane(_solve_paper)),
+        "lsq": Method(
+            solve=solve_lsq,
+            options={name: Option(default, check) for name, (default, check) in LSQ_OPTIONS.items()},
+            solve_tensor=solve_lsq_tensor,
+        ),
+        "learned": Method(
+            solve=solve_learned,
+            solve_tensor=solve_learned_tensor,
+            options={name: Option(default, check) for name, (default, check) in LEARNED_OPTIONS.items()},
+            joint_channels=True,
+        ),
     }
 )
 
@@ -279,13 +315,42 @@ def solve_group(moduli: np.ndarray, spec: SolverSpec) -> list[tuple[np.ndarray, 
     moduli = np.asarray(moduli, dtype=np.int64)
     stats = [MoveStats() for _ in moduli]
     solved = REGISTRY[spec.method].solve(moduli, spec, stats)
+    return _anchor_and_report(moduli, solved, stats, spec, start)
+
+
+def solve_on_device(moduli: torch.Tensor, spec: SolverSpec) -> list[tuple[np.ndarray, dict[str, Any]]]:
+    """Solve a (B, C, H, W) batch with the method's tensor solver on its device, then anchor every plane on the CPU.
+
+    Returns:
+        One ``(restored, info)`` per plane, in (B, C) order, as :func:`solve_group` (``energies`` holds the energy
+        of the returned counts, ``steps`` is empty, ``cuts`` 0).
+    """
+    start = time.perf_counter()
+    h, w = moduli.shape[-2:]
+    k = REGISTRY[spec.method].solve_tensor(moduli.detach(), spec).to("cpu").numpy().reshape(-1, h, w)
+    planes = moduli.detach().to("cpu", torch.float64).numpy().astype(np.int64).reshape(-1, h, w)
+    out = _anchor_and_report(planes, planes + spec.params.period * k, [MoveStats() for _ in planes], spec, start)
+    for _, info in out:
+        info["energies"] = [info["energy"]]
+    return out
+
+
+def _anchor_and_report(
+    moduli: np.ndarray, solved: np.ndarray, stats: list[MoveStats], spec: SolverSpec, start: float
+) -> list[tuple[np.ndarray, dict[str, Any]]]:
+    """Anchor every solved plane and gather its info (the second half of :func:`solve_group`)."""
     offsets = pair_offsets(spec.neighborhood)
+    solved = np.asarray(solved, dtype=np.int64)
+    if np.may_share_memory(solved, moduli):
+        solved = solved.copy()
     out = []
     for modulus, restored, st in zip(moduli, solved, stats, strict=True):
-        k = anchor_k(
-            (restored - modulus) // spec.params.period, spec.anchor_fraction, modulus=modulus, bits=spec.params.bits
-        )
-        restored = modulus + spec.params.period * k
+        k = restored - modulus
+        k //= spec.params.period
+        k = anchor_k(k, spec.anchor_fraction, modulus=modulus, bits=spec.params.bits)
+        np.multiply(k, spec.params.period, out=restored)  # in place: the planes returned are views of ``solved``
+        restored += modulus
+        del k
         out.append(
             (
                 restored,

@@ -76,12 +76,12 @@ atexit.register(shutdown_workers)
 
 
 def run_planes(
-    planes: list[np.ndarray], spec: SolverSpec, workers: int | None = None, group: int = 1
+    planes: list[np.ndarray] | np.ndarray, spec: SolverSpec, workers: int | None = None, group: int = 1
 ) -> list[tuple[np.ndarray, dict[str, Any]]]:
     """Solve independent planes, in worker processes when that pays.
 
     Args:
-        planes: (H, W) integer-valued arrays.
+        planes: (H, W) integer-valued arrays, or one (P, H, W) array (whose tasks are then views, not copies).
         spec: the solver.
         workers: number of processes; ``None`` picks :func:`default_workers`; 1 runs in-process, and so does
             any value inside a daemonic process (which may not have children).
@@ -90,10 +90,10 @@ def run_planes(
     Returns:
         One ``(restored, info)`` per plane, in order.
     """
-    if not planes:
+    if len(planes) == 0:
         return []
     group = max(1, int(group))
-    tasks = [np.stack(planes[i : i + group]) for i in range(0, len(planes), group)]
+    tasks = [np.asarray(planes[i : i + group]) for i in range(0, len(planes), group)]
     if workers is None:
         workers = default_workers(len(tasks), sum(int(p.size) for p in planes))
     workers = max(1, min(int(workers), len(tasks)))

@@ -1,0 +1,198 @@
+"""Train the edge-jump network of ``unwrap_single(method="learned")`` and write its weights and model card.
+
+One command, seeded:
+
+    python references/learned_single/train.py --out torch_modulo/singleshot/weights --minutes 60
+
+Training pairs are built on the fly: a random crop of a radiance map (random scale, flips and quarter turns), seen
+as luminance or RGB, scaled so that its brightest region rolls over 2 to 20 times, captured with the library's own
+sensor (``capture_intensity`` at a high bit depth, clipped at the chosen peak, then ``modulo_wrap`` to 8 bits;
+optionally with shot and read noise). Radiance maps come ONLY from the CC0/BSD scenes
+(``protocols.list_scenes(DEV_SCENES, split="train")``: polyhaven-cc0 and openexr-images) and from procedural
+scenes (:mod:`procedural`): the validation scenes are never read here.
+
+The loss is ``learned.edge_loss``: cross-entropy over the jump of every horizontal and vertical pair, weighted up
+on the pairs whose wrapped step is wrong. Adam with a cosine learning rate over ``--steps`` (or over as many steps
+as fit in ``--minutes``, measured on the first steps and written to the model card, so ``--steps`` reproduces a
+run exactly). Logs to stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from procedural import procedural_scene  # noqa: E402
+
+from torch_modulo import protocols  # noqa: E402
+from torch_modulo.capture import capture_intensity, modulo_wrap  # noqa: E402
+from torch_modulo.singleshot.learned import EdgeJumpNet, edge_features, edge_loss, edge_targets  # noqa: E402
+from torch_modulo.tonemap import luminance  # noqa: E402
+
+BITS = 8
+PERIOD = 2**BITS
+
+
+def load_train_scenes(max_side: int) -> list[torch.Tensor]:
+    """The CC0/BSD training scenes as (3, H, W) float32 radiance (grey scenes repeated), longer side <= max_side."""
+    scenes = []
+    for path in protocols.list_scenes(protocols.DEV_SCENES, split="train"):
+        assert protocols.scene_split(path, protocols.DEV_SCENES) == "train"
+        image = protocols.load_scene(path, max_side).float()
+        if image.shape[0] == 1:
+            image = image.expand(3, -1, -1).contiguous()
+        scenes.append(image)
+    return scenes
+
+
+def random_crop(scenes: list[torch.Tensor], size: int, rng: np.random.Generator) -> torch.Tensor:
+    """A (3, size, size) crop of a random scene at a random scale (1x or 2x area-averaged), flipped and turned."""
+    image = scenes[rng.integers(len(scenes))]
+    factor = int(rng.choice([1, 2, 2]))
+    _, h, w = image.shape
+    if min(h, w) < size * factor:
+        factor = 1
+    if min(h, w) < size:
+        image = F.interpolate(image[None], scale_factor=size / min(h, w) + 0.01, mode="bilinear")[0]
+        _, h, w = image.shape
+    span = size * factor
+    y, x = rng.integers(0, h - span + 1), rng.integers(0, w - span + 1)
+    crop = image[:, y : y + span, x : x + span]
+    if factor > 1:
+        crop = F.avg_pool2d(crop[None], factor)[0]
+    if rng.random() < 0.5:
+        crop = crop.flip(-1)
+    return torch.rot90(crop, int(rng.integers(4)), (-2, -1)).contiguous()
+
+
+def capture_pair(radiance: torch.Tensor, rng: np.random.Generator, noise: float) -> torch.Tensor:
+    """True counts (C, H, W) of one crop: grey (luminance) or RGB, brightest region 2 to 20 rollovers.
+
+    The exposure maps a high percentile of the crop (99.9th, 99th or the maximum) to a peak of ``256 w`` counts,
+    ``w`` log-uniform in [2, 20]; counts saturate at that peak. With probability ``noise``, shot noise (1 to 16
+    electrons per count) and as much read noise are added before the floor.
+    """
+    x = luminance(radiance[None])[0] if rng.random() < 0.5 else radiance
+    x = x.double().clamp_min(0.0)
+    peak = PERIOD * math.exp(rng.uniform(math.log(2.0), math.log(20.0)))
+    q = float(rng.choice([99.9, 99.0, 100.0]))
+    ref = float(np.percentile(x.numpy(), q)) or float(x.max()) or 1.0
+    exposure = peak / ref
+    if rng.random() < noise:
+        e = x * exposure
+        electrons = float(np.exp(rng.uniform(0.0, math.log(16.0))))
+        g = torch.Generator().manual_seed(int(rng.integers(2**31)))
+        e = e + torch.randn(e.shape, generator=g, dtype=e.dtype) * torch.sqrt(e / electrons + 1.0)
+        x, exposure = e.clamp_min(0.0), 1.0
+    counts = capture_intensity(x, exposure, bits=20)
+    return counts.clamp_max(math.floor(peak))
+
+
+def make_batch(
+    scenes: list[torch.Tensor], batch: int, size: int, rng: np.random.Generator, args: argparse.Namespace
+) -> torch.Tensor:
+    """(batch, 3, size, size) true counts; grey samples are repeated into the three channels."""
+    out = []
+    for _ in range(batch):
+        if rng.random() < args.procedural:
+            radiance = procedural_scene(size, rng)
+        else:
+            radiance = random_crop(scenes, size, rng)
+        counts = capture_pair(radiance, rng, args.noise)
+        out.append(counts.expand(3, -1, -1) if counts.shape[0] == 1 else counts)
+    return torch.stack(out).float()
+
+
+def train(args: argparse.Namespace) -> dict[str, object]:
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    rng = np.random.default_rng(args.seed)
+    scenes = load_train_scenes(args.scene_side)
+    print(f"loaded {len(scenes)} training scenes", flush=True)
+    net = EdgeJumpNet(width=args.width, max_jump=args.max_jump)
+    n_params = sum(p.numel() for p in net.parameters())
+    print(f"parameters: {n_params}", flush=True)
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    steps = args.steps
+    start = time.perf_counter()
+    step, smooth, hard_acc = 0, None, None
+    while steps == 0 or step < steps:
+        if steps == 0 and step == args.probe_steps:
+            per_step = (time.perf_counter() - start) / step
+            steps = max(step + 1, int(args.minutes * 60 / per_step))
+            print(f"{per_step:.2f} s/step: training {steps} steps", flush=True)
+        total = steps or max(args.probe_steps * 100, 1)
+        lr = args.lr * 0.5 * (1 + math.cos(math.pi * min(step / total, 1.0)))
+        for group in opt.param_groups:
+            group["lr"] = lr
+        counts = make_batch(scenes, args.batch, args.crop, rng, args)
+        target, hard = edge_targets(counts, BITS, args.max_jump)
+        logits = net(edge_features(modulo_wrap(counts, BITS), BITS))
+        loss = edge_loss(logits, target, args.hard_weight)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        with torch.no_grad():
+            right = logits.argmax(dim=3) == target
+            acc = float(right[hard].float().mean()) if hard.any() else math.nan
+        loss = loss.detach()
+        smooth = float(loss) if smooth is None else 0.98 * smooth + 0.02 * float(loss)
+        if not math.isnan(acc):
+            hard_acc = acc if hard_acc is None else 0.98 * hard_acc + 0.02 * acc
+        step += 1
+        if step % args.log_every == 0:
+            print(
+                f"step {step}/{steps} loss {smooth:.4f} hard-pair acc {hard_acc or 0:.3f} lr {lr:.2e} "
+                f"{time.perf_counter() - start:.0f}s",
+                flush=True,
+            )
+    minutes = (time.perf_counter() - start) / 60
+    record = {"config": net.config, "state": {k: v.detach().half() for k, v in net.state_dict().items()}}
+    args.out.mkdir(parents=True, exist_ok=True)
+    torch.save(record, args.out / "edge_jump.pt")
+    summary = {
+        "steps": step,
+        "minutes": round(minutes, 1),
+        "parameters": n_params,
+        "final_loss": smooth,
+        "hard_pair_accuracy": hard_acc,
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+    }
+    (args.out / "train_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(json.dumps(summary), flush=True)
+    return summary
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("torch_modulo/singleshot/weights"))
+    ap.add_argument("--steps", type=int, default=0, help="training steps (0: as many as fit in --minutes)")
+    ap.add_argument("--minutes", type=float, default=60.0)
+    ap.add_argument("--probe-steps", type=int, default=20, help="steps timed to size --minutes")
+    ap.add_argument("--batch", type=int, default=8)
+    ap.add_argument("--crop", type=int, default=96)
+    ap.add_argument("--width", type=int, default=16)
+    ap.add_argument("--max-jump", type=int, default=15)
+    ap.add_argument("--lr", type=float, default=2e-3)
+    ap.add_argument("--hard-weight", type=float, default=5.0)
+    ap.add_argument("--procedural", type=float, default=0.3, help="share of procedural crops")
+    ap.add_argument("--noise", type=float, default=0.15, help="share of crops with sensor noise")
+    ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--log-every", type=int, default=25)
+    return ap.parse_args(argv)
+
+
+if __name__ == "__main__":
+    train(parse_args())

@@ -1,0 +1,181 @@
+"""Tests for the learned single-shot method (torch_modulo/singleshot/learned.py): loader, shapes, devices, batches,
+exact consistency with the modulus, the decoders, and a tiny training run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from torch_modulo.capture import modulo_wrap
+from torch_modulo.singleshot import unwrap_single
+from torch_modulo.singleshot.learned import (
+    EdgeJumpNet,
+    _unflip,
+    decode_edges,
+    edge_features,
+    edge_loss,
+    edge_targets,
+    learned_k,
+    load_model,
+    predict_edges,
+    refine_cut,
+)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Small convolutions run fastest on one thread (and do not fight the other processes of a shared machine)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def scene(size: int = 48, seed: int = 0) -> np.ndarray:
+    """(size, size) counts: a dark floor, a smooth bump and a bright lamp whose border steps by several periods."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:size, 0:size].astype(np.float64)
+    img = 20 + 8 * x + 600 * np.exp(-((y - size / 2) ** 2 + (x - size / 3) ** 2) / (size * size / 8))
+    lamp = (np.abs(y - 0.7 * size) < size / 8) & (np.abs(x - 0.7 * size) < size / 8)
+    img = img + 1500 * lamp + rng.uniform(0, 3, img.shape)
+    return np.floor(img)
+
+
+def oracle_logp(counts: np.ndarray, max_jump: int = 15) -> np.ndarray:
+    """(2, 2J + 1, H, W) log-probabilities that are sure of the true jump of every pair."""
+    target, _ = edge_targets(torch.from_numpy(counts)[None, None], 8, max_jump)
+    logp = np.full((2, 2 * max_jump + 1, *counts.shape), -20.0)
+    np.put_along_axis(logp, target[0, 0].numpy()[:, None], 0.0, axis=1)
+    return logp
+
+
+class TestLoader:
+    def test_shipped_weights_load_offline_on_cpu(self) -> None:
+        net = load_model()
+        assert isinstance(net, EdgeJumpNet) and not net.training
+        assert next(net.parameters()).device.type == "cpu"
+        assert sum(p.numel() for p in net.parameters()) <= 2_000_000
+        assert load_model() is net  # cached
+
+    def test_weights_option(self, tmp_path) -> None:
+        net = EdgeJumpNet(width=4, max_jump=3)
+        path = tmp_path / "tiny.pt"
+        torch.save({"config": net.config, "state": net.state_dict()}, path)
+        out = unwrap_single(torch.from_numpy(scene(16)) % 256, method="learned", weights=str(path))
+        assert out.shape == (16, 16)
+
+    def test_bad_options(self) -> None:
+        m = torch.zeros(8, 8)
+        with pytest.raises(ValueError, match="weights"):
+            unwrap_single(m, method="learned", weights="/nonexistent/w.pt")
+        with pytest.raises(TypeError, match="weights"):
+            unwrap_single(m, method="learned", weights=3)
+        with pytest.raises(ValueError, match="max_cuts"):
+            unwrap_single(m, method="learned", max_cuts=-1)
+        with pytest.raises(TypeError, match="colour"):
+            unwrap_single(m, method="learned", colour=True)
+
+
+class TestLearnedUnwrap:
+    @pytest.mark.parametrize("shape", [(20, 24), (1, 20, 24), (3, 20, 24), (2, 3, 20, 24), (1, 2, 20, 24)])
+    def test_cardinality(self, shape: tuple, device: torch.device, dtype: torch.dtype) -> None:
+        g = torch.Generator().manual_seed(0)
+        modulus = torch.randint(0, 256, shape, generator=g).to(device=device, dtype=dtype)
+        out = unwrap_single(modulus, method="learned", workers=1)
+        assert out.shape == modulus.shape and out.dtype == dtype and out.device == modulus.device
+
+    def test_consistent_with_modulus(self) -> None:
+        truth = np.stack([scene(40, s) for s in range(3)])
+        modulus = torch.from_numpy(truth % 256)
+        out = unwrap_single(modulus, method="learned", max_cuts=2, workers=1)
+        k = (out - modulus) / 256
+        assert torch.equal(k, torch.round(k)) and bool((k >= 0).all())
+        assert torch.equal(torch.remainder(out, 256), modulus)
+
+    def test_batch_equals_per_image(self) -> None:
+        truth = torch.from_numpy(np.stack([np.stack([scene(32, 3 * b + c) for c in range(3)]) for b in range(2)]))
+        modulus = truth % 256
+        batch = unwrap_single(modulus, method="learned", workers=1)
+        single = torch.stack([unwrap_single(m, method="learned", workers=1) for m in modulus])
+        assert torch.equal(batch, single)
+        assert torch.equal(unwrap_single(modulus[:0], method="learned"), modulus[:0])
+
+    def test_input_untouched(self) -> None:
+        modulus = torch.from_numpy(scene(24) % 256)
+        before = modulus.clone()
+        unwrap_single(modulus, method="learned")
+        assert torch.equal(modulus, before)
+
+
+class TestDecoders:
+    def test_tree_with_oracle_jumps_is_exact(self) -> None:
+        truth = scene(48)
+        m = (truth % 256).astype(np.int64)
+        k, confidence = decode_edges(m, oracle_logp(truth), 8)
+        restored = m + 256 * k
+        assert np.array_equal(restored - restored.min(), truth - truth.min())
+        assert confidence.shape == m.shape and float(confidence.min()) > 0.99
+
+    def test_cut_undoes_a_wrong_region(self) -> None:
+        truth = scene(32)
+        m = (truth % 256).astype(np.int64)
+        k_true = (truth.astype(np.int64) - m) // 256
+        k = k_true.copy()
+        k[8:20, 10:22] += 1  # a region shifted by one period, as one wrong tree pair does
+        fixed = refine_cut(m, k, oracle_logp(truth), 8, max_cuts=4)
+        assert np.array_equal(fixed - fixed[0, 0], k_true - k_true[0, 0])
+
+    def test_learned_k_grey_and_colour(self) -> None:
+        truth = np.stack([scene(24, s) for s in range(3)])
+        k, confidence = learned_k((truth % 256).astype(np.int64), 8)
+        assert k.shape == confidence.shape == truth.shape and k.dtype == np.int64
+        k1, _ = learned_k((truth[:1] % 256).astype(np.int64), 8)
+        assert k1.shape == (1, 24, 24)
+
+    @pytest.mark.parametrize("dims", [(-1,), (-2,), (-1, -2)])
+    def test_unflip_maps_pairs_back(self, dims: tuple[int, ...]) -> None:
+        truth = scene(20)
+        logp = torch.from_numpy(oracle_logp(truth))[None]
+        flipped = torch.from_numpy(oracle_logp(np.flip(truth, [d + 2 for d in dims]).copy()))[None]
+        back = _unflip(flipped, dims)
+        assert torch.equal(back[:, 0, :, :, :-1], logp[:, 0, :, :, :-1])  # the last column has no right pair
+        assert torch.equal(back[:, 1, :, :-1], logp[:, 1, :, :-1])
+
+    def test_augment_option(self) -> None:
+        modulus = torch.from_numpy(np.stack([scene(24, s) for s in range(3)]) % 256)
+        out = unwrap_single(modulus, method="learned", augment=True)
+        assert torch.equal(torch.remainder(out, 256), modulus)
+        with pytest.raises(TypeError, match="augment"):
+            unwrap_single(modulus, method="learned", augment=1)
+
+    def test_predict_edges_pads_odd_sizes(self) -> None:
+        net = EdgeJumpNet(width=4, max_jump=2)
+        logp = predict_edges(net, torch.zeros(3, 13, 7), 8)
+        assert logp.shape == (3, 2, 5, 13, 7)
+        assert torch.allclose(logp.exp().sum(dim=2), torch.ones(3, 2, 13, 7), atol=1e-5)
+
+
+class TestTraining:
+    def test_targets_match_counts(self) -> None:
+        counts = torch.from_numpy(scene(16))[None, None]
+        target, hard = edge_targets(counts, 8, 15)
+        wd = (torch.diff(counts % 256, dim=-1) + 128) % 256 - 128
+        assert torch.equal(torch.diff(counts, dim=-1), wd + 256 * (target[:, :, 0, :, :-1] - 15))
+        assert bool(hard.any())
+
+    def test_tiny_model_learns(self) -> None:
+        torch.manual_seed(0)
+        counts = torch.from_numpy(np.stack([scene(24, s) for s in range(2)])).float()[:, None].expand(2, 3, 24, 24)
+        net = EdgeJumpNet(width=4, max_jump=7, dilations=(1,))
+        opt = torch.optim.Adam(net.parameters(), lr=1e-2)
+        x = edge_features(modulo_wrap(counts, 8), 8)
+        target, _ = edge_targets(counts, 8, 7)
+        losses = []
+        for _ in range(20):
+            loss = edge_loss(net(x), target)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            losses.append(float(loss.detach()))
+        assert losses[-1] < 0.6 * losses[0]

@@ -1,0 +1,472 @@
+"""Learned single-shot unwrapping: a small network predicts every neighbour step, an exact integer decoder picks ``k``.
+
+``method="learned"`` of :func:`~torch_modulo.singleshot.unwrap_single`. Smoothness alone cannot tell a step of
+``d`` counts from one of ``d + 2^N``; what can is knowledge of natural HDR scenes (a lamp is brighter than the wall
+around it, a sky brighter than the ground). :class:`EdgeJumpNet` is a small fully convolutional U-Net that sees the
+modulus image and its wrapped differences (for colour, all channels together) and predicts, for every horizontal and
+vertical neighbour pair, a distribution over the integer *jump* ``n`` in ``I_j - I_i = w(I_m,j - I_m,i) + n 2^N``,
+``n`` in ``[-J, J]``, where ``w`` wraps into ``[-2^(N-1), 2^(N-1))`` (``n = 0``: the wrapped step is right, as
+path following assumes).
+
+Decoding is exact and integer (:func:`decode_edges`): every pair gets its most likely jump and that jump's
+probability; the maximum-likelihood spanning tree (Kruskal over ``-log p``) joins the most confident pairs first,
+and ``k`` is integrated along it, so the output is always ``I_m + k 2^N`` with integer ``k``. The probability of
+the path from the root, ``prod p``, is a confidence per pixel. :func:`solve_learned` is the registry's solver; the
+caller anchors ``k`` (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
+
+The shipped weights (``weights/edge_jump.pt``, record in ``weights/MODEL_CARD.md``) load offline from the package
+(:func:`load_model`). Training: :func:`edge_targets` and :func:`edge_loss` (cross-entropy, weighted up on the pairs
+whose wrapped step is wrong); the recipe that made the shipped weights is ``references/learned_single/train.py``.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from torch_modulo._checks import check_flag, check_int
+from torch_modulo.singleshot.grid import path_to_root, spanning_tree
+
+__all__ = [
+    "LEARNED_OPTIONS",
+    "WEIGHTS",
+    "EdgeJumpNet",
+    "decode_edges",
+    "edge_features",
+    "edge_loss",
+    "edge_targets",
+    "learned_k",
+    "load_model",
+    "predict_edges",
+    "refine_cut",
+    "check_weights",
+    "solve_learned",
+]
+
+#: The file name of the shipped weights inside ``torch_modulo/singleshot/weights``.
+WEIGHTS = "edge_jump.pt"
+
+#: Channels the network sees at once: one image's RGB (a single channel is repeated three times).
+SLOTS = 3
+
+
+def _wrap(d: torch.Tensor, period: float) -> torch.Tensor:
+    """Wrap differences into ``[-period / 2, period / 2)``."""
+    half = period / 2
+    return torch.remainder(d + half, period) - half
+
+
+def edge_features(modulus: torch.Tensor, bits: int) -> torch.Tensor:
+    """The network input for (B, 3, H, W) moduli: per channel ``I_m / 2^N``, its phasor, and the wrapped steps.
+
+    Per channel: ``I_m / 2^N - 0.5``, ``cos`` and ``sin`` of ``2 pi I_m / 2^N``, and the wrapped horizontal and
+    vertical differences to the next pixel divided by ``2^N`` (0 where the next pixel is outside the image).
+
+    Returns:
+        (B, 15, H, W) float32.
+    """
+    period = float(2**bits)
+    m = modulus.float()
+    dx = F.pad(_wrap(m[..., :, 1:] - m[..., :, :-1], period), (0, 1))
+    dy = F.pad(_wrap(m[..., 1:, :] - m[..., :-1, :], period), (0, 0, 0, 1))
+    phase = m * (2 * torch.pi / period)
+    return torch.cat([m / period - 0.5, torch.cos(phase), torch.sin(phase), dx / period, dy / period], dim=1)
+
+
+def _block(cin: int, cout: int, dilation: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=dilation, dilation=dilation), nn.ReLU(inplace=True))
+
+
+class EdgeJumpNet(nn.Module):
+    """A small U-Net from :func:`edge_features` to jump logits of every horizontal and vertical pair, per channel.
+
+    Full resolution, 1/2 and 1/4 with a dilated residual bottleneck (dilations ``dilations``), skip connections.
+
+    Args:
+        width: channels at full resolution (doubled at 1/2, quadrupled at 1/4).
+        max_jump: ``J``: the jumps predicted are ``-J .. J``.
+        dilations: dilations of the bottleneck's residual blocks (the receptive field grows with their sum).
+
+    Shape:
+        - Input: (B, 15, H, W) features, ``H`` and ``W`` multiples of 4 (:func:`predict_edges` pads).
+        - Output: (B, 3, 2, 2J + 1, H, W) logits: channel, direction (0: to the right neighbour, 1: to the one
+          below), jump ``n + J``.
+
+    Example:
+        >>> net = EdgeJumpNet(width=4, max_jump=2)
+        >>> net(torch.zeros(1, 15, 8, 8)).shape
+        torch.Size([1, 3, 2, 5, 8, 8])
+    """
+
+    def __init__(self, width: int = 16, max_jump: int = 15, dilations: tuple[int, ...] = (1, 2, 4, 8)) -> None:
+        super().__init__()
+        w = int(width)
+        self.config = {"width": w, "max_jump": int(max_jump), "dilations": tuple(int(d) for d in dilations)}
+        self.max_jump = int(max_jump)
+        self.enc1 = nn.Sequential(_block(5 * SLOTS, w), _block(w, w))
+        self.enc2 = nn.Sequential(_block(w, 2 * w), _block(2 * w, 2 * w))
+        self.enc3 = _block(2 * w, 4 * w)
+        self.mid = nn.ModuleList(_block(4 * w, 4 * w, d) for d in self.config["dilations"])
+        self.dec2 = nn.Sequential(_block(4 * w + 2 * w, 2 * w), _block(2 * w, 2 * w))
+        self.dec1 = nn.Sequential(_block(2 * w + w, w), _block(w, w))
+        self.head = nn.Conv2d(w, SLOTS * 2 * (2 * self.max_jump + 1), 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        e1 = self.enc1(x)
+        e2 = self.enc2(F.avg_pool2d(e1, 2))
+        e3 = self.enc3(F.avg_pool2d(e2, 2))
+        for block in self.mid:
+            e3 = e3 + block(e3)
+        d2 = self.dec2(torch.cat([F.interpolate(e3, scale_factor=2.0, mode="nearest"), e2], dim=1))
+        d1 = self.dec1(torch.cat([F.interpolate(d2, scale_factor=2.0, mode="nearest"), e1], dim=1))
+        b, _, h, w = x.shape
+        return self.head(d1).view(b, SLOTS, 2, 2 * self.max_jump + 1, h, w)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_cached(path: str, device: str) -> EdgeJumpNet:
+    record = torch.load(path, map_location="cpu", weights_only=True)
+    net = EdgeJumpNet(**record["config"])
+    net.load_state_dict({k: v.float() for k, v in record["state"].items()})
+    return net.eval().to(device)  # one cached copy per device: moving a shared copy would move it for every caller
+
+
+def load_model(path: str | Path | None = None, device: torch.device | str = "cpu") -> EdgeJumpNet:
+    """The trained :class:`EdgeJumpNet` (eval mode, no gradients needed), loaded offline.
+
+    Args:
+        path: a weights file written by the training recipe (``{"config": ..., "state": ...}``); ``None`` loads
+            the weights shipped in the package.
+        device: where to put the network.
+
+    Example:
+        >>> load_model().max_jump
+        15
+    """
+    if path is None:
+        path = resources.files("torch_modulo.singleshot").joinpath("weights", WEIGHTS)
+    return _load_cached(str(path), str(torch.device(device)))
+
+
+def _unflip(logp: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
+    """Map (S, 2, K, H, W) log-probabilities predicted on an image flipped along ``dims`` back to the image.
+
+    Flipping an axis moves each pair along it one pixel and reverses its orientation (jump ``n`` becomes ``-n``).
+    """
+    for d in dims:
+        logp = logp.flip(d).clone()
+        direction = 0 if d == -1 else 1
+        logp[:, direction] = torch.roll(logp[:, direction].flip(1), -1, dims=d)
+    return logp
+
+
+def predict_edges(net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool = False) -> torch.Tensor:
+    """Jump log-probabilities of one image's channels: (C, 2, 2J + 1, H, W) float32 on the moduli's device.
+
+    Args:
+        net: the network.
+        moduli: (C, H, W) moduli, C = 1 (seen as grey: repeated into the three slots) or 3 (seen together); other
+            channel counts are predicted one channel at a time.
+        bits: the sensor bit depth ``N``.
+        augment: average the log-probabilities over the four flips of the image (four times the work).
+    """
+    c, h, w = moduli.shape
+    if c not in (1, SLOTS):
+        return torch.cat([predict_edges(net, moduli[i : i + 1], bits, augment) for i in range(c)])
+    x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
+    ph, pw = -h % 4, -w % 4
+    total = None
+    for dims in ((), (-1,), (-2,), (-1, -2)) if augment else ((),):
+        xf = x.flip(dims) if dims else x
+        xf = F.pad(xf, (0, pw, 0, ph), mode="replicate") if ph or pw else xf
+        with torch.no_grad():
+            logp = torch.log_softmax(net(edge_features(xf, bits)).float(), dim=3)[0, :, :, :, :h, :w]
+        logp = _unflip(logp, dims) if dims else logp
+        total = logp if total is None else total + logp
+    logp = torch.log_softmax(total, dim=2) if augment else total
+    return logp[:1] if c == 1 else logp
+
+
+def decode_edges(
+    modulus: np.ndarray, logp: np.ndarray, bits: int, max_jump: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Integer ``k`` of one plane from its jump log-probabilities: a maximum-likelihood spanning tree.
+
+    Every horizontal and vertical pair takes its most likely jump ``n`` (probability ``p``); Kruskal's algorithm
+    joins the pairs from the most confident (``-log p`` smallest) and ``k`` is integrated along the tree.
+
+    Args:
+        modulus: (H, W) integer-valued moduli.
+        logp: (2, 2J + 1, H, W) jump log-probabilities (:func:`predict_edges`; direction 0: to the right, 1: down).
+        bits: the sensor bit depth ``N``.
+        max_jump: ``J`` (default: from ``logp``).
+
+    Returns:
+        ``(k, confidence)``: int64 (H, W) rollover counts with ``k = 0`` at pixel 0 (the caller anchors them) and
+        float64 (H, W) probability that every pair on the path to pixel 0 is right.
+
+    Example:
+        >>> m = np.array([[200, 10, 60]])
+        >>> logp = np.full((2, 3, 1, 3), -30.0); logp[:, 1] = 0.0  # sure that every wrapped step is right
+        >>> decode_edges(m, logp, 8)[0].tolist()
+        [[0, 1, 1]]
+    """
+    m = np.asarray(modulus, dtype=np.int64)
+    h, w = m.shape
+    if h * w <= 1:
+        return np.zeros((h, w), dtype=np.int64), np.ones((h, w))
+    j = (logp.shape[1] - 1) // 2 if max_jump is None else int(max_jump)
+    period, half = 1 << bits, 1 << (bits - 1)
+    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
+    firsts, seconds, costs, steps = [], [], [], []
+    for direction, (a, b) in enumerate(((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))):
+        lp = logp[direction][(slice(None), *a)]
+        best = lp.argmax(axis=0)
+        jump = best.astype(np.int64) - j
+        wd = np.mod(m[b] - m[a] + half, period) - half
+        firsts.append(ids[a].ravel())
+        seconds.append(ids[b].ravel())
+        steps.append((wd + period * jump - (m[b] - m[a])).ravel() // period)  # k_b - k_a
+        costs.append(np.maximum(-np.take_along_axis(lp, best[None], 0)[0].ravel(), 0.0).astype(np.float64))
+    first, second, step, cost = map(np.concatenate, (firsts, seconds, steps, costs))
+    parent = spanning_tree(h * w, first, second, cost + 1e-9)
+    # The pair joining every pixel to its parent: horizontal pairs come first (row-major), then vertical ones.
+    child = np.arange(h * w, dtype=np.int64)
+    low = np.minimum(child, parent)
+    vertical = np.abs(parent - child) == w
+    pos = np.where(vertical, h * (w - 1) + low, (low // w) * (w - 1) + low % w)
+    root = parent == child
+    pos = np.where(root, 0, pos)
+    sign = np.where(low == parent, 1, -1)  # the pair is stored from its lower index to its higher one
+    k_step = np.where(root, 0, sign * step[pos])
+    c_step = np.where(root, 0.0, cost[pos])
+    k = path_to_root(parent, k_step)
+    confidence = np.exp(-path_to_root(parent, c_step))
+    return k.reshape(h, w), confidence.reshape(h, w)
+
+
+#: Cost of a jump outside ``-J .. J`` (and the most any jump costs): ``-log`` of a negligible probability.
+_MAX_COST = 30.0
+
+#: The two pair directions as ``(first end, second end)`` slices of a plane: to the right, and down.
+_DIRECTIONS = ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))
+
+
+def _pair_costs(m: np.ndarray, k: np.ndarray, cost: np.ndarray, period: int, shift_a: int, shift_b: int) -> list:
+    """Per direction, the cost ``-log p`` of the jump every pair has when ``k`` moves by ``shift_a`` at its first end
+    and ``shift_b`` at its second."""
+    j = (cost.shape[1] - 1) // 2
+    out = []
+    for direction, (a, b) in enumerate(_DIRECTIONS):
+        restored_a, restored_b = m[a] + period * (k[a] + shift_a), m[b] + period * (k[b] + shift_b)
+        wd = np.mod(m[b] - m[a] + period // 2, period) - period // 2
+        n = (restored_b - restored_a - wd) // period + j
+        inside = (n >= 0) & (n <= 2 * j)
+        c = np.take_along_axis(cost[direction][(slice(None), *a)], np.clip(n, 0, 2 * j)[None], 0)[0]
+        out.append(np.where(inside, c, _MAX_COST))
+    return out
+
+
+def refine_cut(modulus: np.ndarray, k: np.ndarray, logp: np.ndarray, bits: int, max_cuts: int = 6) -> np.ndarray:
+    """Lower ``sum over pairs of -log p(jump)`` over integer ``k`` by binary moves ``k <- k + delta x`` (min cuts).
+
+    Where :func:`decode_edges` trusts one tree, this weighs every pair, so a confident but wrong tree pair that
+    shifts a whole region is outvoted by the region's other borders (loop consistency). Moves alternate
+    ``delta = +1, -1``; a pair term that is not graph-representable for a move is dropped from its graph (as
+    in PUMA) and a move is kept only if the exact cost drops. Stops after ``max_cuts`` cuts or two moves in a row
+    that do not help.
+
+    Args:
+        modulus: (H, W) integer-valued moduli.
+        k: int64 (H, W) starting rollover counts (e.g. from :func:`decode_edges`).
+        logp: (2, 2J + 1, H, W) jump log-probabilities.
+        bits: the sensor bit depth ``N``.
+        max_cuts: the most minimum cuts.
+
+    Returns:
+        int64 (H, W) rollover counts.
+    """
+    import maxflow
+
+    m = np.asarray(modulus, dtype=np.int64)
+    k = np.asarray(k, dtype=np.int64).copy()
+    h, w = m.shape
+    period = 1 << bits
+    cost = np.clip(-np.asarray(logp, dtype=np.float64), 0.0, _MAX_COST)
+    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
+    energy = sum(float(c.sum()) for c in _pair_costs(m, k, cost, period, 0, 0))
+    failures = 0
+    for cut in range(max_cuts):
+        delta = 1 if cut % 2 == 0 else -1
+        same = _pair_costs(m, k, cost, period, 0, 0)
+        second_moves = _pair_costs(m, k, cost, period, 0, delta)
+        first_moves = _pair_costs(m, k, cost, period, delta, 0)
+        graph = maxflow.Graph[float](h * w, 2 * h * w)
+        graph.add_nodes(h * w)
+        unary = np.zeros((h, w))
+        for (a, b), c_a, c_b, c_f in zip(_DIRECTIONS, same, second_moves, first_moves, strict=True):
+            unary[a] += c_f - c_a
+            unary[b] += c_a - c_f
+            pair = np.maximum(c_b + c_f - 2 * c_a, 0.0)
+            graph.add_edges(ids[a].ravel(), ids[b].ravel(), pair.ravel(), np.zeros(pair.size))
+        u = unary.ravel()
+        graph.add_grid_tedges(ids.ravel(), np.maximum(u, 0.0), np.maximum(-u, 0.0))
+        graph.maxflow()
+        moved = graph.get_grid_segments(ids)
+        trial = k + delta * moved
+        new = sum(float(c.sum()) for c in _pair_costs(m, trial, cost, period, 0, 0))
+        if new < energy - 1e-9 * max(1.0, energy):
+            k, energy, failures = trial, new, 0
+        else:
+            failures += 1
+            if failures >= 2:
+                break
+    return k
+
+
+def learned_k(
+    moduli: np.ndarray, bits: int, net: EdgeJumpNet | None = None, max_cuts: int = 0, augment: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` and the path confidence of one image's channels (C, H, W), up to one constant per channel.
+
+    Example:
+        >>> ramp = np.arange(0, 1200, 40).reshape(1, 1, -1).repeat(8, axis=1)
+        >>> k, confidence = learned_k(ramp % 256, 8)
+        >>> bool(((ramp % 256) + 256 * k == ramp).all())
+        True
+    """
+    net = load_model() if net is None else net
+    device = next(net.parameters()).device
+    moduli = np.asarray(moduli, dtype=np.int64)
+    logp = predict_edges(net, torch.from_numpy(moduli).to(device), bits, augment).cpu().numpy()
+    out = [decode_edges(m, lp, bits, net.max_jump) for m, lp in zip(moduli, logp, strict=True)]
+    k = np.stack([k for k, _ in out])
+    if max_cuts:
+        k = np.stack([refine_cut(m, kk, lp, bits, max_cuts) for m, kk, lp in zip(moduli, k, logp, strict=True)])
+    return k, np.stack([c for _, c in out])
+
+
+def check_weights(value: object, name: str) -> str | None:
+    """The ``weights`` option: ``None`` (the shipped weights) or the path of an existing weights file, as a string.
+
+    Example:
+        >>> check_weights(None, "weights") is None
+        True
+    """
+    if value is None:
+        return None
+    if not isinstance(value, (str, Path)):
+        raise TypeError(f"{name} must be None or a path to a weights file; got {value!r}")
+    if not Path(value).is_file():
+        raise ValueError(f"{name} must be an existing weights file; got {str(value)!r}")
+    return str(value)
+
+
+def _check_cuts(value: object, name: str) -> int:
+    return check_int(value, name, 0)
+
+
+#: The options of ``method="learned"``: name -> (default, check). ``weights``: ``None`` (the shipped weights) or
+#: a weights file; ``max_cuts``: the most binary moves of :func:`refine_cut` after the tree (0: the tree alone);
+#: ``augment``: average the network's output over the four flips of the image (:func:`predict_edges`).
+LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
+    "weights": (None, check_weights),
+    "max_cuts": (0, _check_cuts),
+    "augment": (False, check_flag),
+}
+
+
+def solve_learned(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:
+    """The registry's solver: (G, H, W) int64 moduli of one image's channels to restored counts (not anchored).
+
+    Options (``spec.option``): ``weights`` and ``max_cuts`` (:data:`LEARNED_OPTIONS`).
+    """
+    from torch_modulo.singleshot.graphcut import plane_energy
+    from torch_modulo.singleshot.grid import pair_offsets
+
+    start = time.perf_counter()
+    p = spec.params
+    weights = spec.option("weights")
+    k, _ = learned_k(moduli, p.bits, load_model(weights), int(spec.option("max_cuts")), spec.option("augment"))
+    restored = moduli + p.period * k
+    for plane, st in zip(restored, stats, strict=True):
+        st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
+        st.tick("learned", start)
+    return restored
+
+
+def solve_learned_tensor(moduli: torch.Tensor, spec: Any) -> torch.Tensor:
+    """The registry's tensor solver: a (B, C, H, W) batch to ``k`` (not anchored), the network on the batch's device.
+
+    The network runs where the moduli are (a GPU when they are there); the integer decoding runs on the CPU.
+    """
+    p = spec.params
+    net = load_model(spec.option("weights"), device=moduli.device)
+    ks = []
+    for image in moduli:
+        logp = predict_edges(net, image.to(torch.int64), p.bits, spec.option("augment")).cpu().numpy()
+        planes = image.to("cpu", torch.float64).numpy().astype(np.int64)
+        k = np.stack([decode_edges(m, lp, p.bits, net.max_jump)[0] for m, lp in zip(planes, logp, strict=True)])
+        if spec.option("max_cuts"):
+            cuts = int(spec.option("max_cuts"))
+            k = np.stack([refine_cut(m, kk, lp, p.bits, cuts) for m, kk, lp in zip(planes, k, logp, strict=True)])
+        ks.append(k)
+    shape = moduli.shape
+    return torch.from_numpy(np.stack(ks)) if ks else torch.zeros(shape, dtype=torch.int64)
+
+
+# ------------------------------------------------------------------------------------------------------- training
+
+
+def edge_targets(counts: torch.Tensor, bits: int, max_jump: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Jump classes of the true counts and a mask of the pairs whose wrapped step is wrong.
+
+    Args:
+        counts: (B, C, H, W) true counts.
+        bits: the sensor bit depth ``N``.
+        max_jump: ``J``; jumps beyond it are clipped to ``+-J``.
+
+    Returns:
+        ``(target, hard)``: (B, C, 2, H, W) int64 classes ``n + J`` (direction 0: to the right neighbour, 1: to the
+        one below; the last column / row, which has no neighbour, holds ``J``) and a bool mask of ``n != 0``.
+
+    Example:
+        >>> target, hard = edge_targets(torch.tensor([[[[10.0, 300.0, 310.0]]]]), 8, 2)
+        >>> target[0, 0, 0].tolist(), hard[0, 0, 0].tolist()
+        ([[3, 2, 2]], [[True, False, False]])
+    """
+    period = float(2**bits)
+    c = counts.double()
+    m = torch.remainder(c, period)
+    out = []
+    for dim in (-1, -2):
+        d = torch.diff(c, dim=dim)
+        wd = _wrap(torch.diff(m, dim=dim), period)
+        n = torch.round((d - wd) / period).clamp(-max_jump, max_jump).long() + max_jump
+        pad = (0, 1) if dim == -1 else (0, 0, 0, 1)
+        out.append(F.pad(n, pad, value=max_jump))
+    target = torch.stack(out, dim=2)
+    return target, target != max_jump
+
+
+def edge_loss(logits: torch.Tensor, target: torch.Tensor, hard_weight: float = 5.0) -> torch.Tensor:
+    """Cross-entropy of (B, 3, 2, 2J + 1, H, W) logits against :func:`edge_targets` classes (B, 3, 2, H, W).
+
+    Pairs whose wrapped step is wrong (class ``!= J``) weigh ``hard_weight``; the others 1. The last column's
+    horizontal and the last row's vertical pairs (no neighbour) are left out.
+    """
+    j = (logits.shape[3] - 1) // 2
+    ce = F.cross_entropy(logits.movedim(3, 1), target, reduction="none")
+    weight = 1.0 + (hard_weight - 1.0) * (target != j).float()
+    weight[:, :, 0, :, -1] = 0.0
+    weight[:, :, 1, -1, :] = 0.0
+    return (ce * weight).sum() / weight.sum().clamp_min(1.0)
