@@ -324,7 +324,7 @@ _NOISE_HELP = (
 )
 
 
-def _add_simulate(commands: Any) -> None:
+def _add_simulate(commands: Any) -> None:  # long only because of the options' help text, one argument per call
     simulate = commands.add_parser(
         "simulate",
         help="HDR files -> simulated modulo frame stacks (training data)",
@@ -412,7 +412,7 @@ def _add_simulate(commands: Any) -> None:
     )
 
 
-def _add_unwrap(commands: Any) -> None:
+def _add_unwrap(commands: Any) -> None:  # long only because of the options' help text, one argument per call
     unwrap = commands.add_parser(
         "unwrap",
         help="frame stacks (or single modulus images) -> radiance EXRs",

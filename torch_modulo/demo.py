@@ -72,6 +72,130 @@ def _labelled_grid(panels: list[tuple[str, torch.Tensor]], columns: int = 2) -> 
     return grid
 
 
+def _single_shot(
+    radiance: torch.Tensor,
+    truth: torch.Tensor,
+    bits: int,
+    method: str,
+    workers: int | None,
+    log: Callable[[str], None],
+) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
+    """One modulus image vs one intensity image: the scores and the tensors the figures need."""
+    modulus = capture_modulo(radiance, 1.0, bits)
+    intensity = capture_intensity(radiance, 1.0, bits)
+    start = time.perf_counter()
+    restored = unwrap_single(modulus, bits, method=method, workers=workers)
+    seconds = time.perf_counter() - start
+    wrong = ~exact_k_map(restored, truth, bits)  # offsets aligned as in exact_k
+    low = unwrap_confidence(restored, bits) < LOW_CONFIDENCE
+    single = {
+        "method": method,
+        "exact_k": float(exact_k_share(restored, truth, bits)[0]),
+        "psnr_db": float(psnr(restored, truth, peak=float(truth.max()))[0]),
+        "saturated_in_intensity_image": float((intensity >= 2**bits - 1).double().mean()),
+        "low_confidence_share": float(low.double().mean()),
+        "wrong_k_flagged_low_confidence": float((wrong & low).sum() / wrong.sum()) if bool(wrong.any()) else 1.0,
+        "seconds": seconds,
+    }
+    log(
+        f"single shot ({method}): exact rollover count on {100 * single['exact_k']:.2f}% of values, "
+        f"PSNR {single['psnr_db']:.1f} dB, {single['seconds']:.1f} s "
+        f"(the intensity image saturates {100 * single['saturated_in_intensity_image']:.1f}% of values); "
+        f"unwrap_confidence flags {100 * single['low_confidence_share']:.1f}% of values as guessed, holding "
+        f"{100 * single['wrong_k_flagged_low_confidence']:.1f}% of the wrong ones"
+    )
+
+    return single, {"modulus": modulus, "intensity": intensity, "restored": restored, "wrong": wrong, "low": low}
+
+
+def _multi_shot(
+    radiance: torch.Tensor, bits: int, ratio: float, log: Callable[[str], None]
+) -> tuple[dict[str, Any], torch.Tensor, torch.Tensor]:
+    """Three modulo exposures (the shortest without rollover) vs three clipped ones: scores and both results."""
+    base = (2**bits - 1) / float(radiance.max())
+    taus = [base, base * ratio, base * ratio * ratio]
+    moduli = torch.stack([capture_modulo(radiance, t, bits) for t in taus], dim=1)
+    frames = torch.stack([capture_intensity(radiance, t, bits) for t in taus], dim=1)
+    start = time.perf_counter()
+    multi_radiance = unwrap_multi(moduli, taus, bits)
+    seconds = time.perf_counter() - start
+    merged = merge_intensity(frames, taus, bits)
+    exact_counts = torch.floor(radiance * taus[-1])
+    multi = {
+        "exposures": taus,
+        "exact_k": float((unwrap_multi(moduli, taus, bits, return_counts=True) == exact_counts).double().mean()),
+        "median_relative_error_modulo": _relative_error(multi_radiance, radiance),
+        "median_relative_error_intensity": _relative_error(merged, radiance),
+        "seconds": seconds,
+    }
+    log(
+        f"multi shot (exposure ratio {ratio:g}): exact counts on {100 * multi['exact_k']:.2f}% of values; "
+        f"median relative error {multi['median_relative_error_modulo']:.2e} (modulo) vs "
+        f"{multi['median_relative_error_intensity']:.2e} (intensity merge)"
+    )
+
+    return multi, multi_radiance, merged
+
+
+def _write_outputs(
+    out: Path,
+    path: Path,
+    radiance: torch.Tensor,
+    shot: dict[str, torch.Tensor],
+    multi_radiance: torch.Tensor,
+    merged: torch.Tensor,
+    single: dict[str, Any],
+    bits: int,
+) -> list[Path]:
+    """Tone-map the results and write the EXRs, the PNGs and the comparison figure; returns the written paths."""
+    modulus, intensity, restored = shot["modulus"], shot["intensity"], shot["restored"]
+    display = {
+        "truth": tonemap_histogram(radiance, srgb=True),
+        "intensity": (intensity / (2**bits - 1)) ** (1 / 2.2),  # linear counts, gamma-encoded for display
+        "modulus": (modulus / (2**bits - 1)).clamp(0, 1),
+        "single_shot": tonemap_histogram(restored, srgb=True),
+        "multi_shot": tonemap_histogram(multi_radiance, srgb=True),
+        "intensity_merge": tonemap_histogram(merged, srgb=True),
+    }
+    written = []
+    metadata = {"bits": bits, "exposure": 1.0, "source": path.name}
+    for name, image in (
+        ("single_shot.exr", restored[0]),
+        ("multi_shot.exr", multi_radiance[0]),
+        ("intensity_merge.exr", merged[0]),
+    ):
+        io.write_image(out / name, image, metadata=metadata)
+        written.append(out / name)
+    io.write_image(out / "modulus.png", modulus[0], metadata=metadata, dtype="uint8")
+    written.append(out / "modulus.png")
+    for name, image in display.items():
+        if name == "modulus":  # the modulus is its own display image: modulus.png holds it
+            continue
+        target = out / f"{name}_tonemapped.png"
+        io.write_image(target, image[0], dtype="uint8", normalized=True)
+        written.append(target)
+    k_error = shot["wrong"].any(dim=1, keepdim=True)
+    flagged = shot["low"].any(dim=1, keepdim=True)
+    panels = [
+        ("ground truth (tone-mapped)", display["truth"][0]),
+        (f"{bits}-bit intensity camera", display["intensity"][0]),
+        (f"{bits}-bit modulo camera", display["modulus"][0]),
+        (f"single shot unwrapped: {100 * single['exact_k']:.1f}% exact k", display["single_shot"][0]),
+        ("wrong rollover count (white)", k_error[0].expand(3, -1, -1).to(radiance.dtype)),
+        (
+            f"low confidence, k guessed (white): {100 * single['low_confidence_share']:.1f}%",
+            flagged[0].expand(3, -1, -1).to(radiance.dtype),
+        ),
+        ("3 modulo captures unwrapped", display["multi_shot"][0]),
+        ("3 intensity captures merged", display["intensity_merge"][0]),
+    ]
+    grid = torch.from_numpy(_labelled_grid(panels)).permute(2, 0, 1)
+    io.write_image(out / "comparison.png", grid, dtype="uint8", normalized=True)
+    written.append(out / "comparison.png")
+
+    return written
+
+
 def run_demo(
     out_dir: str | os.PathLike[str] = "demo_out",
     scene: str | os.PathLike[str] | None = None,
@@ -112,100 +236,13 @@ def run_demo(
     truth = torch.floor(radiance)
     log(f"scene {path.name}: {tuple(hdr.shape)}, {float(truth.max()):.0f} counts at the brightest pixel")
 
-    # Single shot: one 8-bit modulus image vs one 8-bit intensity image.
-    modulus = capture_modulo(radiance, 1.0, bits)
-    intensity = capture_intensity(radiance, 1.0, bits)
+    single, shot = _single_shot(radiance, truth, bits, method, workers, log)
+    timings["single_shot_s"] = single["seconds"]
+    multi, multi_radiance, merged = _multi_shot(radiance, bits, ratio, log)
+    timings["multi_shot_s"] = multi["seconds"]
     start = time.perf_counter()
-    restored = unwrap_single(modulus, bits, method=method, workers=workers)
-    timings["single_shot_s"] = time.perf_counter() - start
-    wrong = ~exact_k_map(restored, truth, bits)  # offsets aligned as in exact_k
-    low = unwrap_confidence(restored, bits) < LOW_CONFIDENCE
-    single = {
-        "method": method,
-        "exact_k": float(exact_k_share(restored, truth, bits)[0]),
-        "psnr_db": float(psnr(restored, truth, peak=float(truth.max()))[0]),
-        "saturated_in_intensity_image": float((intensity >= 2**bits - 1).double().mean()),
-        "low_confidence_share": float(low.double().mean()),
-        "wrong_k_flagged_low_confidence": float((wrong & low).sum() / wrong.sum()) if bool(wrong.any()) else 1.0,
-        "seconds": timings["single_shot_s"],
-    }
-    log(
-        f"single shot ({method}): exact rollover count on {100 * single['exact_k']:.2f}% of values, "
-        f"PSNR {single['psnr_db']:.1f} dB, {single['seconds']:.1f} s "
-        f"(the intensity image saturates {100 * single['saturated_in_intensity_image']:.1f}% of values); "
-        f"unwrap_confidence flags {100 * single['low_confidence_share']:.1f}% of values as guessed, holding "
-        f"{100 * single['wrong_k_flagged_low_confidence']:.1f}% of the wrong ones"
-    )
-
-    # Multi shot: three exposures, the shortest without rollover.
-    base = (2**bits - 1) / float(radiance.max())
-    taus = [base, base * ratio, base * ratio * ratio]
-    moduli = torch.stack([capture_modulo(radiance, t, bits) for t in taus], dim=1)
-    frames = torch.stack([capture_intensity(radiance, t, bits) for t in taus], dim=1)
-    start = time.perf_counter()
-    multi_radiance = unwrap_multi(moduli, taus, bits)
-    timings["multi_shot_s"] = time.perf_counter() - start
-    merged = merge_intensity(frames, taus, bits)
-    exact_counts = torch.floor(radiance * taus[-1])
-    multi = {
-        "exposures": taus,
-        "exact_k": float((unwrap_multi(moduli, taus, bits, return_counts=True) == exact_counts).double().mean()),
-        "median_relative_error_modulo": _relative_error(multi_radiance, radiance),
-        "median_relative_error_intensity": _relative_error(merged, radiance),
-        "seconds": timings["multi_shot_s"],
-    }
-    log(
-        f"multi shot (exposure ratio {ratio:g}): exact counts on {100 * multi['exact_k']:.2f}% of values; "
-        f"median relative error {multi['median_relative_error_modulo']:.2e} (modulo) vs "
-        f"{multi['median_relative_error_intensity']:.2e} (intensity merge)"
-    )
-
-    # Tone-map and write.
-    start = time.perf_counter()
-    display = {
-        "truth": tonemap_histogram(radiance, srgb=True),
-        "intensity": (intensity / (2**bits - 1)) ** (1 / 2.2),  # linear counts, gamma-encoded for display
-        "modulus": (modulus / (2**bits - 1)).clamp(0, 1),
-        "single_shot": tonemap_histogram(restored, srgb=True),
-        "multi_shot": tonemap_histogram(multi_radiance, srgb=True),
-        "intensity_merge": tonemap_histogram(merged, srgb=True),
-    }
-    timings["tonemap_s"] = time.perf_counter() - start
-    written = []
-    metadata = {"bits": bits, "exposure": 1.0, "source": path.name}
-    for name, image in (
-        ("single_shot.exr", restored[0]),
-        ("multi_shot.exr", multi_radiance[0]),
-        ("intensity_merge.exr", merged[0]),
-    ):
-        io.write_image(out / name, image, metadata=metadata)
-        written.append(out / name)
-    io.write_image(out / "modulus.png", modulus[0], metadata=metadata, dtype="uint8")
-    written.append(out / "modulus.png")
-    for name, image in display.items():
-        if name == "modulus":  # the modulus is its own display image: modulus.png holds it
-            continue
-        target = out / f"{name}_tonemapped.png"
-        io.write_image(target, image[0], dtype="uint8", normalized=True)
-        written.append(target)
-    k_error = wrong.any(dim=1, keepdim=True)
-    flagged = low.any(dim=1, keepdim=True)
-    panels = [
-        ("ground truth (tone-mapped)", display["truth"][0]),
-        (f"{bits}-bit intensity camera", display["intensity"][0]),
-        (f"{bits}-bit modulo camera", display["modulus"][0]),
-        (f"single shot unwrapped: {100 * single['exact_k']:.1f}% exact k", display["single_shot"][0]),
-        ("wrong rollover count (white)", k_error[0].expand(3, -1, -1).to(hdr.dtype)),
-        (
-            f"low confidence, k guessed (white): {100 * single['low_confidence_share']:.1f}%",
-            flagged[0].expand(3, -1, -1).to(hdr.dtype),
-        ),
-        ("3 modulo captures unwrapped", display["multi_shot"][0]),
-        ("3 intensity captures merged", display["intensity_merge"][0]),
-    ]
-    grid = torch.from_numpy(_labelled_grid(panels)).permute(2, 0, 1)
-    io.write_image(out / "comparison.png", grid, dtype="uint8", normalized=True)
-    written.append(out / "comparison.png")
+    written = _write_outputs(out, path, radiance, shot, multi_radiance, merged, single, bits)
+    timings["tonemap_and_write_s"] = time.perf_counter() - start
 
     summary = {
         "scene": str(path),
