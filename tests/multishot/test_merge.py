@@ -4,25 +4,9 @@ from __future__ import annotations
 
 import pytest
 import torch
+from multishot_helpers import stack
 
 import torch_modulo as tm
-
-
-def _scene(shape: tuple[int, ...], stops: float, seed: int = 0, dtype: torch.dtype = torch.float64) -> torch.Tensor:
-    """Random radiance spanning ``stops`` stops below 1 (so exposure 2**stops gives up to 2**stops counts)."""
-    gen = torch.Generator().manual_seed(seed)
-    return torch.exp2(-torch.rand(shape, generator=gen, dtype=torch.float64) * stops).to(dtype)
-
-
-def _stack(radiance: torch.Tensor, taus: list[float], bits: int) -> torch.Tensor:
-    return torch.stack([tm.capture_modulo(radiance, t, bits) for t in taus], dim=-4)
-
-
-def _ratios_to_taus(ratios: list[float]) -> list[float]:
-    taus = [1.0]
-    for r in ratios:
-        taus.append(taus[-1] * r)
-    return taus
 
 
 class TestMergeIntensity:
@@ -52,7 +36,7 @@ class TestMergeIntensity:
         # Paper Fig. 8: a band 0..255 seen by 4-bit cameras; 2 modulo captures at ratio 16 beat 5 intensity captures.
         band = torch.linspace(0, 255, 2048, dtype=torch.float64).view(1, 1, 1, -1) / 16.0
         mod_taus = [1.0, 16.0]
-        modulo = tm.unwrap_multi(_stack(band, mod_taus, 4), mod_taus, 4)
+        modulo = tm.unwrap_multi(stack(band, mod_taus, 4), mod_taus, 4)
         int_taus = [1.0, 2.0, 4.0, 8.0, 16.0]
         frames = torch.stack([tm.capture_intensity(band, t, 4) for t in int_taus], dim=1)
         intensity = tm.merge_intensity(frames, int_taus, 4)

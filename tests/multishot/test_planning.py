@@ -6,25 +6,9 @@ import math
 
 import pytest
 import torch
+from multishot_helpers import scene, stack
 
 import torch_modulo as tm
-
-
-def _scene(shape: tuple[int, ...], stops: float, seed: int = 0, dtype: torch.dtype = torch.float64) -> torch.Tensor:
-    """Random radiance spanning ``stops`` stops below 1 (so exposure 2**stops gives up to 2**stops counts)."""
-    gen = torch.Generator().manual_seed(seed)
-    return torch.exp2(-torch.rand(shape, generator=gen, dtype=torch.float64) * stops).to(dtype)
-
-
-def _stack(radiance: torch.Tensor, taus: list[float], bits: int) -> torch.Tensor:
-    return torch.stack([tm.capture_modulo(radiance, t, bits) for t in taus], dim=-4)
-
-
-def _ratios_to_taus(ratios: list[float]) -> list[float]:
-    taus = [1.0]
-    for r in ratios:
-        taus.append(taus[-1] * r)
-    return taus
 
 
 class TestPlanExposures:
@@ -43,8 +27,8 @@ class TestPlanExposures:
 
     def test_plan_then_unwrap_recovers_scene(self) -> None:
         taus = tm.plan_exposures(20, bits=8, base=1.0)
-        radiance = _scene((1, 3, 16, 16), stops=20, seed=4) * 255.9
-        counts = tm.unwrap_multi(_stack(radiance, taus, 8), taus, 8, return_counts=True)
+        radiance = scene((1, 3, 16, 16), stops=20, seed=4) * 255.9
+        counts = tm.unwrap_multi(stack(radiance, taus, 8), taus, 8, return_counts=True)
         assert torch.equal(counts, torch.floor(radiance * taus[-1]))
         assert float(counts.min()) >= 1.0  # the darkest pixel still gets a count
 

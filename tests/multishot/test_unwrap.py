@@ -9,25 +9,9 @@ import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from multishot_helpers import ratios_to_taus, scene, stack
 
 import torch_modulo as tm
-
-
-def _scene(shape: tuple[int, ...], stops: float, seed: int = 0, dtype: torch.dtype = torch.float64) -> torch.Tensor:
-    """Random radiance spanning ``stops`` stops below 1 (so exposure 2**stops gives up to 2**stops counts)."""
-    gen = torch.Generator().manual_seed(seed)
-    return torch.exp2(-torch.rand(shape, generator=gen, dtype=torch.float64) * stops).to(dtype)
-
-
-def _stack(radiance: torch.Tensor, taus: list[float], bits: int) -> torch.Tensor:
-    return torch.stack([tm.capture_modulo(radiance, t, bits) for t in taus], dim=-4)
-
-
-def _ratios_to_taus(ratios: list[float]) -> list[float]:
-    taus = [1.0]
-    for r in ratios:
-        taus.append(taus[-1] * r)
-    return taus
 
 
 class TestUnwrapMulti:
@@ -58,30 +42,30 @@ class TestUnwrapMulti:
         # values, so no rule can be exact: documented, and the reason plan_exposures stays at <= 2^N - 1.
         band = torch.linspace(0, 15.999, 40001, dtype=torch.float64).view(1, 1, 1, -1)
         taus = [1.0, 15.15]
-        counts = tm.unwrap_multi(_stack(band, taus, 4), taus, 4, return_counts=True)
+        counts = tm.unwrap_multi(stack(band, taus, 4), taus, 4, return_counts=True)
         wrong = float((counts != torch.floor(band * 15.15)).double().mean())
         assert 0 < wrong < 0.01
 
     @pytest.mark.parametrize("bits", [4, 8, 12])
     def test_exact_for_every_ratio_up_to_two_to_the_bits(self, bits: int) -> None:
-        radiance = _scene((1, 1, 16, 64), stops=3 * bits, seed=bits)
+        radiance = scene((1, 1, 16, 64), stops=3 * bits, seed=bits)
         period = 2**bits
         for ratio in sorted({2, 3, period // 2 - 1, period // 2 + 1, period - 1, period}):
-            taus = _ratios_to_taus([ratio, ratio])
+            taus = ratios_to_taus([ratio, ratio])
             scale = (period - 1) / (float(radiance.max()) + 1e-9)  # no rollover at the shortest exposure
-            moduli = _stack(radiance * scale, taus, bits)
+            moduli = stack(radiance * scale, taus, bits)
             counts = tm.unwrap_multi(moduli, taus, bits, return_counts=True)
             assert torch.equal(counts, torch.floor(radiance * scale * taus[-1])), f"ratio {ratio}"
 
     def test_paper_method_exact_at_ratio_two_to_the_bits_but_not_below(self) -> None:
-        radiance = _scene((1, 1, 32, 32), stops=20, seed=3) * 255
-        exact = _ratios_to_taus([256, 256])
+        radiance = scene((1, 1, 32, 32), stops=20, seed=3) * 255
+        exact = ratios_to_taus([256, 256])
         truth = torch.floor(radiance * exact[-1])
-        assert torch.equal(tm.unwrap_multi(_stack(radiance, exact, 8), exact, 8, "paper", return_counts=True), truth)
+        assert torch.equal(tm.unwrap_multi(stack(radiance, exact, 8), exact, 8, "paper", return_counts=True), truth)
         taus = [1.0, 100.0, 10000.0]
         truth = torch.floor(radiance * taus[-1])
-        paper = tm.unwrap_multi(_stack(radiance, taus, 8), taus, 8, "paper", return_counts=True)
-        robust = tm.unwrap_multi(_stack(radiance, taus, 8), taus, 8, "robust", return_counts=True)
+        paper = tm.unwrap_multi(stack(radiance, taus, 8), taus, 8, "paper", return_counts=True)
+        robust = tm.unwrap_multi(stack(radiance, taus, 8), taus, 8, "robust", return_counts=True)
         assert torch.equal(robust, truth)
         assert float((paper != truth).double().mean()) > 0.1
 
@@ -94,28 +78,28 @@ class TestUnwrapMulti:
     def test_property_recovers_counts_for_random_ratios(self, bits: int, fractions: list[float], seed: int) -> None:
         period = 2**bits
         ratios = [2.0 + f * (period - 3) for f in fractions]  # neighbouring ratios in [2, 2^bits - 1]
-        taus = _ratios_to_taus(ratios)
+        taus = ratios_to_taus(ratios)
         if taus[-1] * period > 2.0**50:
             return
-        radiance = _scene((2, 2, 6, 7), stops=float(np.log2(taus[-1])) + bits, seed=seed) * (period - 1)
-        moduli = _stack(radiance, taus, bits)
+        radiance = scene((2, 2, 6, 7), stops=float(np.log2(taus[-1])) + bits, seed=seed) * (period - 1)
+        moduli = stack(radiance, taus, bits)
         counts = tm.unwrap_multi(moduli, taus, bits, return_counts=True)
         assert torch.equal(counts, torch.floor(radiance * taus[-1]))
 
     def test_float32_exact_up_to_two_to_the_24(self) -> None:
-        radiance = _scene((2, 3, 32, 32), stops=24, seed=7, dtype=torch.float64) * 255
+        radiance = scene((2, 3, 32, 32), stops=24, seed=7, dtype=torch.float64) * 255
         taus = [1.0, 255.0, 65025.0]  # longest exposure reaches ~2^24 counts
         truth = torch.floor(radiance * taus[-1])
         assert float(truth.max()) < 2**24
-        moduli = _stack(radiance, taus, 8).float()
+        moduli = stack(radiance, taus, 8).float()
         counts = tm.unwrap_multi(moduli, taus, 8, return_counts=True)
         assert counts.dtype == torch.float32
         assert torch.equal(counts.double(), truth)
 
     def test_unsorted_and_per_batch_exposures(self, device: torch.device, dtype: torch.dtype) -> None:
-        radiance = _scene((3, 2, 5, 5), stops=14, seed=1, dtype=torch.float64) * 255
+        radiance = scene((3, 2, 5, 5), stops=14, seed=1, dtype=torch.float64) * 255
         taus = torch.tensor([[1.0, 30.0, 900.0], [1.0, 200.0, 40000.0], [1.0, 2.0, 4.0]], dtype=torch.float64)
-        moduli = torch.stack([_stack(radiance[i], taus[i].tolist(), 8) for i in range(3)])
+        moduli = torch.stack([stack(radiance[i], taus[i].tolist(), 8) for i in range(3)])
         order = torch.tensor([[2, 0, 1], [1, 2, 0], [0, 1, 2]])
         shuffled = torch.stack([moduli[i, order[i]] for i in range(3)])
         shuffled_taus = torch.stack([taus[i, order[i]] for i in range(3)])
@@ -125,18 +109,18 @@ class TestUnwrapMulti:
         assert out.dtype == dtype and out.device.type == device.type
 
     def test_same_permutation_for_all_items(self) -> None:
-        radiance = _scene((2, 1, 4, 4), stops=12, seed=2) * 255
+        radiance = scene((2, 1, 4, 4), stops=12, seed=2) * 255
         taus = [1.0, 50.0, 2500.0]
-        moduli = _stack(radiance, taus, 8)
+        moduli = stack(radiance, taus, 8)
         perm = [2, 0, 1]
         out = tm.unwrap_multi(moduli[:, perm], [taus[p] for p in perm], 8, return_counts=True)
         assert torch.equal(out, torch.floor(radiance * taus[-1]))
 
     @pytest.mark.parametrize("method", ["robust", "paper"])
     def test_batched_equals_unbatched_and_empty_batch(self, method: str, device: torch.device) -> None:
-        radiance = _scene((4, 3, 6, 9), stops=14, seed=5) * 255
+        radiance = scene((4, 3, 6, 9), stops=14, seed=5) * 255
         taus = [1.0, 37.0, 1369.0]
-        moduli = _stack(radiance, taus, 8).to(device)
+        moduli = stack(radiance, taus, 8).to(device)
         batched = tm.unwrap_multi(moduli, taus, 8, method)
         for i in range(4):
             assert torch.equal(batched[i], tm.unwrap_multi(moduli[i], taus, 8, method))
@@ -144,21 +128,21 @@ class TestUnwrapMulti:
         assert empty.shape == (0, 3, 6, 9)
 
     def test_large_input_spans_several_tiles(self) -> None:
-        radiance = _scene((3, 1, 300, 301), stops=16, seed=9) * 255
+        radiance = scene((3, 1, 300, 301), stops=16, seed=9) * 255
         taus = [1.0, 150.0, 22500.0]
-        moduli = _stack(radiance, taus, 8).float()
+        moduli = stack(radiance, taus, 8).float()
         counts = tm.unwrap_multi(moduli, taus, 8, return_counts=True)
         assert torch.equal(counts.double(), torch.floor(radiance * taus[-1]))
 
     def test_input_not_modified_and_no_grad(self) -> None:
-        moduli = _stack(_scene((1, 1, 4, 4), stops=10) * 255, [1.0, 4.0], 8).requires_grad_()
+        moduli = stack(scene((1, 1, 4, 4), stops=10) * 255, [1.0, 4.0], 8).requires_grad_()
         before = moduli.detach().clone()
         out = tm.unwrap_multi(moduli, [1.0, 4.0], 8)
         assert torch.equal(moduli.detach(), before)
         assert not out.requires_grad
 
     def test_module_equals_function(self) -> None:
-        moduli = _stack(_scene((2, 3, 4, 4), stops=12) * 255, [1.0, 64.0], 8)
+        moduli = stack(scene((2, 3, 4, 4), stops=12) * 255, [1.0, 64.0], 8)
         layer = tm.MultiExposureUnwrap(bits=8, method="paper", return_counts=True)
         assert torch.equal(
             layer(moduli, [1.0, 64.0]), tm.unwrap_multi(moduli, [1.0, 64.0], 8, "paper", return_counts=True)
@@ -219,9 +203,9 @@ class TestRealScenes:
         for path in files:
             image = self._load(path)
             ratios = rng.uniform(2, 255, size=2).tolist()
-            taus = _ratios_to_taus(ratios)
+            taus = ratios_to_taus(ratios)
             radiance = image * (255.0 / float(image.max()))
-            moduli = _stack(radiance, taus, 8)
+            moduli = stack(radiance, taus, 8)
             truth = torch.floor(radiance * taus[-1])
             assert torch.equal(tm.unwrap_multi(moduli, taus, 8, return_counts=True), truth), path.name
             paper = tm.unwrap_multi(moduli, taus, 8, method="paper", return_counts=True)
