@@ -120,6 +120,10 @@ def train(args: argparse.Namespace) -> dict[str, object]:
     scenes = load_train_scenes(args.scene_side)
     print(f"loaded {len(scenes)} training scenes", flush=True)
     net = EdgeJumpNet(width=args.width, max_jump=args.max_jump)
+    if args.init is not None:  # fine-tune: start from earlier weights (same width and max_jump)
+        record = torch.load(args.init, map_location="cpu", weights_only=True)
+        net.load_state_dict({k: v.float() for k, v in record["state"].items()})
+        print(f"starting from {args.init}", flush=True)
     n_params = sum(p.numel() for p in net.parameters())
     print(f"parameters: {n_params}", flush=True)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
@@ -190,6 +194,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--init", type=Path, default=None, help="start from these weights (fine-tuning)")
     ap.add_argument("--log-every", type=int, default=25)
     return ap.parse_args(argv)
 
