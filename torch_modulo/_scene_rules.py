@@ -115,16 +115,15 @@ def plan_scene(
     return taus, factor, stops + extra
 
 
-def _brightest_count(bits: int, noise: NoiseModel | None, sigmas: float = 3.0) -> float:
-    """The largest expected count whose reading stays ``sigmas`` deviations below the rollover (``2**bits - 1``
+def _brightest_count(bits: int, noise: NoiseModel | None) -> float:
+    """The largest expected count whose reading stays three deviations below the rollover (``2**bits - 1``
     without noise)."""
+    from torch_modulo.multishot import brightest_unwrapped
+
     top = 2.0**bits - 1
     if noise is None or noise.is_noiseless:
         return top
-    lo, hi = 0.0, top
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if mid + sigmas * math.sqrt(noise.count_variance(mid)) <= top else (lo, mid)
+    lo = brightest_unwrapped(bits, noise)
     if lo < 1:
         raise ValueError(f"noise {noise} leaves no count below the rollover at bits={bits}: use more bits")
     return lo
@@ -172,12 +171,11 @@ def unsafe_ratio_warnings(taus: Sequence[float], bits: int, noise: NoiseModel | 
     """A warning when given exposures have a neighbouring ratio the noise model says is unsafe (naming a plan)."""
     if noise is None or noise.is_noiseless or len(taus) < 2:
         return []
-    from torch_modulo.multishot import plan_exposures, safe_ratio
+    from torch_modulo.multishot import plan_exposures, unsafe_ratio_message
 
     ordered = sorted(taus)
-    worst = max(b / a for a, b in zip(ordered, ordered[1:], strict=False))
-    ratio, c_min = safe_ratio(bits, noise)
-    if worst <= ratio * (1 + 1e-9):
+    message = unsafe_ratio_message(max(b / a for a, b in zip(ordered, ordered[1:], strict=False)), bits, noise)
+    if message is None:
         return []
     stops = scene_stops(image)
     try:
@@ -185,10 +183,7 @@ def unsafe_ratio_warnings(taus: Sequence[float], bits: int, noise: NoiseModel | 
     except ValueError as error:
         plan = f"none possible: {error}"
     return [
-        f"exposure ratio {worst:g} is unsafe under {noise}: pixels that read up to {c_min:.0f} counts in the "
-        f"shorter frame cannot be decoded in the longer one and keep errors of 50% or more; keep ratios <= "
-        f"{ratio:.3g}, e.g. --exposures auto (for this scene plan_exposures({stops}, bits={bits}, noise=noise): "
-        f"{plan})"
+        f"{message}, e.g. --exposures auto (for this scene plan_exposures({stops}, bits={bits}, noise=noise): {plan})"
     ]
 
 

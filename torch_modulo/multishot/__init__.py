@@ -15,14 +15,16 @@ Rooms:
 from __future__ import annotations
 
 from torch_modulo.multishot.merge import IntensityMerge, merge_intensity
-from torch_modulo.multishot.planning import plan_exposures, safe_ratio
+from torch_modulo.multishot.planning import brightest_unwrapped, plan_exposures, safe_ratio, unsafe_ratio_message
 from torch_modulo.multishot.unwrap import MultiExposureUnwrap, unwrap_multi
 
 __all__ = [
     "IntensityMerge",
     "MultiExposureUnwrap",
+    "brightest_unwrapped",
     "merge_intensity",
     "plan_exposures",
     "safe_ratio",
+    "unsafe_ratio_message",
     "unwrap_multi",
 ]

@@ -21,7 +21,7 @@ import torch
 from torch_modulo._checks import check_bits, check_real
 from torch_modulo.noise import NoiseModel, as_noise_model
 
-__all__ = ["plan_exposures", "safe_ratio"]
+__all__ = ["brightest_unwrapped", "plan_exposures", "safe_ratio", "unsafe_ratio_message"]
 
 _MAX_FRAMES = 256
 
@@ -30,8 +30,13 @@ def _gate(bits: int, sigmas: float) -> float:
     return (2**bits / (2.0 * sigmas)) ** 2
 
 
-def _brightest_unwrapped(bits: int, noise: NoiseModel, sigmas: float) -> float:
-    """The largest expected count ``c`` whose noisy reading stays below ``2**bits`` by ``sigmas`` deviations."""
+def brightest_unwrapped(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> float:
+    """The largest expected count ``c`` whose noisy reading stays ``sigmas`` deviations below ``2**bits - 1``.
+
+    Example:
+        >>> 200 < brightest_unwrapped(8, NoiseModel()) < 215
+        True
+    """
     top = 2**bits - 1.0
     lo, hi = 0.0, top
     for _ in range(60):
@@ -69,7 +74,7 @@ def _noisy_plan(
             f"noise {noise} leaves no margin at bits={bits}: its read noise alone exceeds the decoding gate "
             f"(2^bits / (2 sigmas))^2 = {gate:g}; use more bits or fewer sigmas"
         )
-    first = _brightest_unwrapped(bits, noise, sigmas)
+    first = brightest_unwrapped(bits, noise, sigmas)
     longest = base * 2.0**stops / first  # E_min = 1 / longest reads one count there
     if longest <= base:
         return [float(base)]
@@ -203,3 +208,24 @@ def safe_ratio(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> tuple[float
         _gate(bits, sigmas),
     )
     return float(ratio), c_min
+
+
+def unsafe_ratio_message(worst: float, bits: int, noise: NoiseModel, sigmas: float = 3.0) -> str | None:
+    """Why a largest neighbouring ratio ``worst`` is unsafe under ``noise`` (see :func:`safe_ratio`), or None if safe.
+
+    Callers add what to use instead.
+
+    Example:
+        >>> unsafe_ratio_message(4.0, 8, NoiseModel()) is None
+        True
+        >>> unsafe_ratio_message(256.0, 8, NoiseModel()).startswith("exposure ratio 256 is unsafe")
+        True
+    """
+    ratio, c_min = safe_ratio(bits, noise, sigmas)
+    if worst <= ratio * (1 + 1e-9):
+        return None
+    return (
+        f"exposure ratio {worst:g} is unsafe under {noise}: pixels that read up to {c_min:.0f} counts in the "
+        f"shorter frame cannot be decoded in the longer one and keep errors of 50% or more; keep ratios <= "
+        f"{ratio:.3g}"
+    )

@@ -13,7 +13,7 @@ from torch import nn
 from torch_modulo._checks import check_bits, check_choice, check_flag, check_modulus, check_real, validation_enabled
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
-from torch_modulo.multishot.planning import safe_ratio
+from torch_modulo.multishot.planning import unsafe_ratio_message
 from torch_modulo.multishot.stack import neighbour_ratios, sort_stack, stack_exposures
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -24,18 +24,12 @@ def _warn_unsafe(tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: Nois
     """Warn when a neighbouring ratio leaves pixels that risk gross errors undecodable in the next frame."""
     if not ratios.numel():
         return
-    ratio, c_min = safe_ratio(bits, noise, sigmas)
-    worst = float(ratios.max())
-    if worst <= ratio * (1 + 1e-9):
+    message = unsafe_ratio_message(float(ratios.max()), bits, noise, sigmas)
+    if message is None:
         return
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)
-    warnings.warn(
-        f"exposure ratio {worst:g} is unsafe under {noise}: pixels that read up to {c_min:.0f} counts in the "
-        f"shorter frame cannot be decoded in the longer one and keep errors of 50% or more; keep ratios <= "
-        f"{ratio:.3g}, e.g. exposures = plan_exposures({stops}, bits={bits}, noise=noise)",
-        stacklevel=3,
-    )
+    warnings.warn(f"{message}, e.g. exposures = plan_exposures({stops}, bits={bits}, noise=noise)", stacklevel=3)
 
 
 def _count_traced(stack: torch.Tensor, tau: torch.Tensor, bits: int, method: str, return_counts: bool) -> torch.Tensor:
