@@ -41,15 +41,6 @@ NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": Nois
 INTENSITY_RATIOS = (16.0, 4.0, 2.0, 1.25)
 
 
-def scale_scene(image: torch.Tensor) -> tuple[torch.Tensor, int]:
-    """Protocol N's scaling: the 0.1th percentile of positive values at 16 counts; the stops the scene needs."""
-    positive = image[image > 0]
-    low = float(torch.quantile(positive[:: max(1, positive.numel() // 4_000_000)], 0.001))
-    radiance = image * (16.0 / low)
-    stops = math.ceil(math.log2(float(image.max()) / low) + 4)
-    return radiance, stops
-
-
 def scores(estimate: torch.Tensor, truth: torch.Tensor) -> dict[str, float]:
     mask = truth > 0
     rel = ((estimate[mask] - truth[mask]).abs() / truth[mask]).float()
@@ -80,7 +71,8 @@ def blind_scores(batch: torch.Tensor, radiance: torch.Tensor, stops: int, noise:
 def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) -> dict[str, object]:
     noise = NOISES[noise_name]
     image = protocols.load_scene(path, 512)
-    radiance, stops = scale_scene(image)
+    scale, stops = protocols.protocol_n(image)
+    radiance = image * scale
     batch = radiance.unsqueeze(0)  # float64 (1, 3, H, W)
     plan = tm.plan_exposures(stops, 8, noise=noise, tolerance=args.tolerance, min_ratio=args.min_ratio)
     taus = [t / plan[-1] for t in plan]

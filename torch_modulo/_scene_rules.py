@@ -7,7 +7,6 @@ The rules are described in :mod:`torch_modulo.pipeline` (which re-exports :func:
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -15,6 +14,7 @@ import numpy as np
 import torch
 
 from torch_modulo.noise import PRESETS, NoiseModel, as_noise_model
+from torch_modulo.protocols import protocol_n
 
 __all__ = [
     "NoiseSpec",
@@ -54,20 +54,8 @@ def noise_name(noise: NoiseModel | None) -> str | None:
     return str(noise)
 
 
-def _low_and_peak(image: torch.Tensor) -> tuple[float, float]:
-    """Protocol N's reference: the 0.1th percentile of the positive values, and the largest value."""
-    positive = image[image > 0].double()
-    if not positive.numel():
-        raise ValueError(
-            f"the image is black (maximum {float(image.max()) if image.numel() else 0.0}): nothing to scale"
-        )
-    sample = positive[:: max(1, positive.numel() // 4_000_000)]  # torch.quantile takes at most 2^24 values
-    return float(torch.quantile(sample, 0.001)), float(positive.max())
-
-
 def scene_stops(image: torch.Tensor) -> int:
-    low, peak = _low_and_peak(image)
-    return math.ceil(math.log2(peak / low) + 4)
+    return protocol_n(image)[1]
 
 
 def plan_scene(
@@ -103,12 +91,12 @@ def plan_scene(
     from torch_modulo.multishot import plan_exposures
 
     model = noise_model(noise)
-    low, peak = _low_and_peak(image)
-    stops = math.ceil(math.log2(peak / low) + 4)
-    factor = 16.0 / low if scale == "auto" else float(scale)
+    auto_scale, stops = protocol_n(image)
+    peak = float(image.max())
+    factor = auto_scale if scale == "auto" else float(scale)
     for extra in (0, 1):
         plan = plan_exposures(stops + extra, bits, noise=model)
-        longest = 16.0 / (low * factor)
+        longest = auto_scale / factor  # the 0.1th percentile reads 16 counts there
         taus = [t * longest / plan[-1] for t in plan]
         if peak * factor * taus[0] * (1 + 1e-6) < 2**bits:
             break

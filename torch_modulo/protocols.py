@@ -20,6 +20,8 @@ Protocols (12-bit or 10-bit true counts ``I``; the 8-bit modulus is ``I mod 256`
   that ``share`` (20%) of the pixels roll over (``floor(clip(x e, 0, 1) * peak) >= period``) in at least one
   channel; the counts are ``floor(clip(x e, 0, 1) * peak)`` per channel.
 - :func:`protocol_counts` and :data:`PROTOCOL_PEAKS` select a protocol by name; the peak is also the PSNR peak.
+- :func:`protocol_n` (multi shot under noise): the radiance scale that makes the 0.1th percentile of the positive
+  values read 16 counts at exposure 1, and the stops the scene needs, ``ceil(log2(max / that percentile) + 4)``.
 
 Scores (per scene, :func:`score_scene`): each channel's global rollover offset is aligned with the truth first
 (:func:`align_offsets`: the most common difference of the rollover counts ``k = floor(I / 2^N)``); then *exact-k*
@@ -68,6 +70,8 @@ __all__ = [
     "protocol_a10",
     "protocol_b",
     "protocol_counts",
+    "protocol_n",
+    "protocol_n_levels",
     "rolled_over_right",
     "scene_split",
     "score_scene",
@@ -263,6 +267,40 @@ def protocol_counts(image: torch.Tensor, protocol: str) -> torch.Tensor:
     if protocol == "B":
         return protocol_b(image, peak=PROTOCOL_PEAKS["B"])
     return protocol_a(image, peak=PROTOCOL_PEAKS[protocol])
+
+
+def protocol_n_levels(image: torch.Tensor) -> tuple[float, float]:
+    """Protocol N's reference levels of a radiance map: the 0.1th percentile of its positive values, and its maximum.
+
+    Raises:
+        ValueError: the image has no positive value.
+
+    Example:
+        >>> protocol_n_levels(torch.tensor([0.0, 1.0, 2.0, 4.0]))
+        (1.002, 4.0)
+    """
+    positive = image[image > 0].double()
+    if not positive.numel():
+        raise ValueError(
+            f"the image is black (maximum {float(image.max()) if image.numel() else 0.0}): nothing to scale"
+        )
+    sample = positive[:: max(1, positive.numel() // 4_000_000)]  # torch.quantile takes at most 2^24 values
+    return float(torch.quantile(sample, 0.001)), float(positive.max())
+
+
+def protocol_n(image: torch.Tensor) -> tuple[float, int]:
+    """Protocol N's scaling of a radiance map: ``(scale, stops)``.
+
+    ``scale`` makes the 0.1th percentile of the positive values read 16 counts at exposure 1 (the longest
+    exposure); the scene then needs ``stops = ceil(log2(max / that percentile) + 4)``.
+
+    Example:
+        >>> scale, stops = protocol_n(torch.exp2(torch.linspace(0.0, 12.0, 1000)))   # 12 stops
+        >>> round(scale, 3), stops
+        (15.867, 16)
+    """
+    low, peak = protocol_n_levels(image)
+    return 16.0 / low, math.ceil(math.log2(peak / low) + 4)
 
 
 # --------------------------------------------------------------------------------------------------------------------
