@@ -8,6 +8,7 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import check_bits, check_choice, check_modulus
+from torch_modulo.multishot.noisy import weighted_estimate
 from torch_modulo.multishot.stack import sort_stack, stack_exposures
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -84,10 +85,8 @@ def _merge_noisy(stack: torch.Tensor, tau: torch.Tensor, top: float, noise: Nois
     estimates = (x + 0.5) / t
     # The common radiance for the variances: the longest unsaturated frame's (the shortest's if all saturate).
     last = (usable * torch.arange(1, x.shape[1] + 1, device=x.device).view(1, -1, 1, 1, 1)).amax(dim=1, keepdim=True)
-    first = torch.gather(estimates, 1, (last - 1).clamp_min(0))
-    weight = torch.where(usable, t**2 / noise.count_variance(t * first), 0.0)
-    total = weight.sum(dim=1)
-    merged = (weight * estimates).sum(dim=1) / total.clamp_min(torch.finfo(torch.float64).tiny)
+    reference = torch.gather(estimates, 1, (last - 1).clamp_min(0))
+    merged, total = weighted_estimate(x, usable, t, reference, noise)
     merged = torch.where(total > 0, merged, estimates[:, 0])  # saturated everywhere: a lower bound
     return (merged - noise.dark_counts).clamp_min(0.0)
 

@@ -21,7 +21,7 @@ import torch
 
 from torch_modulo.noise import NoiseModel
 
-__all__ = ["decode_noisy"]
+__all__ = ["decode_noisy", "weighted_estimate"]
 
 
 def decode_noisy(
@@ -74,9 +74,32 @@ def decode_noisy(
 
     # Re-weight with every decoded frame's variance at the final estimate.
     used = torch.isfinite(counts)
-    own = noise.count_variance(t * estimate.unsqueeze(1))
-    weight = torch.where(used, t**2 / own, 0.0)
-    total = weight.sum(dim=1)
-    radiance = (weight * torch.where(used, (counts + 0.5) / t, 0.0)).sum(dim=1) / total
+    radiance, total = weighted_estimate(counts, used, t, estimate.unsqueeze(1), noise)
     radiance = (radiance - noise.dark_counts).clamp_min_(0.0)
     return radiance, 1.0 / total, used.sum(dim=1)
+
+
+def weighted_estimate(
+    counts: torch.Tensor, used: torch.Tensor, tau: torch.Tensor, reference: torch.Tensor, noise: NoiseModel
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The inverse-variance mean over the frames (dim 1) of their unbiased estimates ``(I + 1/2) / tau``.
+
+    Each used frame weighs ``tau^2 / Var(I)``, its variance from ``noise`` at the common radiance ``reference``
+    (so a frame's own noise does not set its weight). Shared by the noise-aware decoder and the noise-aware
+    intensity merge.
+
+    Args:
+        counts: (B, M, ...) counts (values where ``used`` is False are ignored, NaN included).
+        used: which counts enter the mean, the shape of ``counts``.
+        tau: the exposures, broadcastable to ``counts``.
+        reference: the radiance the variances are evaluated at, broadcastable to ``counts``.
+        noise: the sensor's noise model.
+
+    Returns:
+        ``(mean, total)``: the mean radiance (dark counts included) and the total weight, (B, ...); the mean is 0
+        where no frame is used.
+    """
+    weight = torch.where(used, tau**2 / noise.count_variance(tau * reference), 0.0)
+    total = weight.sum(dim=1)
+    mean = (weight * torch.where(used, (counts + 0.5) / tau, 0.0)).sum(dim=1)
+    return mean / total.clamp_min(torch.finfo(total.dtype).tiny), total
