@@ -229,6 +229,7 @@ def _mosaic_radiance(radiance: torch.Tensor, cfa: str) -> torch.Tensor:
 
 
 def _seed(value: object, name: str) -> int:
+    # Not _checks.check_int: the sensors have always said "an int", and their tests match that wording.
     if isinstance(value, bool) or not isinstance(value, int):
         raise TypeError(f"{name} must be an int; got {value!r}")
     return int(value)
