@@ -13,13 +13,17 @@ from torch_modulo.singleshot.learned import (
     EdgeJumpNet,
     _unflip,
     decode_edges,
+    decode_jumps,
     edge_features,
     edge_loss,
     edge_targets,
+    learned_confidence,
     learned_k,
     load_model,
     predict_edges,
+    predict_jumps,
     refine_cut,
+    tile_margin,
 )
 
 
@@ -179,3 +183,71 @@ class TestTraining:
             opt.step()
             losses.append(float(loss.detach()))
         assert losses[-1] < 0.6 * losses[0]
+
+
+class TestTiles:
+    """Large images are predicted in tiles with the receptive radius as context: the same pairs, bounded memory."""
+
+    def test_margin_covers_the_receptive_field(self) -> None:
+        torch.manual_seed(0)
+        for dilations in ((1,), (1, 2, 4, 8)):
+            net = EdgeJumpNet(width=4, max_jump=2, dilations=dilations).eval()
+            x = torch.randn(1, 15, 200, 200)
+            y = x.clone()
+            y[..., 100, 100] += 10.0
+            with torch.no_grad():
+                changed = (net(x) - net(y)).abs().amax(dim=(0, 1, 2, 3)) > 0
+            reach = int((changed.nonzero() - 100).abs().max())
+            assert reach < tile_margin(net) <= reach + 8
+
+    def test_tiled_equals_whole(self) -> None:
+        torch.manual_seed(0)
+        net = EdgeJumpNet(width=4, max_jump=3).eval()
+        g = torch.Generator().manual_seed(1)
+        moduli = torch.randint(0, 256, (3, 290, 250), generator=g)
+        whole = predict_edges(net, moduli, 8)
+        tiled = predict_edges(net, moduli, 8, tile=40)
+        assert torch.allclose(tiled, whole, atol=1e-4)
+        jump, cost = predict_jumps(net, moduli, 8, tile=40)
+        best, index = whole.max(dim=2)
+        assert np.array_equal(jump, index.numpy() - 3)
+        assert np.allclose(cost, -best.numpy(), atol=1e-4)
+
+    def test_option(self) -> None:
+        modulus = torch.from_numpy(scene(48) % 256)
+        whole = unwrap_single(modulus, method="learned", tile=0)
+        assert torch.equal(unwrap_single(modulus, method="learned", tile=8), whole)
+        with pytest.raises(ValueError, match="tile"):
+            unwrap_single(modulus, method="learned", tile=2)
+
+
+class TestConfidence:
+    def test_weakest_pair_on_the_path(self) -> None:
+        m = np.array([[10, 20, 30, 40]])
+        jump = np.zeros((2, 1, 4), dtype=np.int16)
+        cost = np.zeros((2, 1, 4), dtype=np.float32)
+        cost[0, 0] = [0.001, 0.001, 2.0, 0.0]  # the pair (2, 3) is unsure
+        k, confidence = decode_jumps(m, jump, cost, 8)
+        assert k.tolist() == [[0, 0, 0, 0]]
+        assert np.allclose(confidence, np.exp(-np.array([[0.0, 0.001, 0.001, 2.0]])))
+
+    @pytest.mark.parametrize("shape", [(24, 20), (3, 24, 20), (2, 1, 24, 20)])
+    def test_learned_confidence_shapes_and_batches(self, shape: tuple, device: torch.device) -> None:
+        g = torch.Generator().manual_seed(0)
+        modulus = torch.randint(0, 256, shape, generator=g).double().to(device)
+        confidence = learned_confidence(modulus)
+        assert confidence.shape == modulus.shape and confidence.device == modulus.device
+        assert bool(((confidence > 0) & (confidence <= 1)).all())
+        if len(shape) == 4:
+            single = torch.stack([learned_confidence(m) for m in modulus])
+            assert torch.equal(confidence, single)
+
+    def test_learned_confidence_is_the_decoders(self) -> None:
+        truth = np.stack([scene(40, s) for s in range(3)])
+        modulus = torch.from_numpy(truth % 256)
+        _, expected = learned_k((truth % 256).astype(np.int64), 8)
+        assert np.allclose(learned_confidence(modulus).numpy(), expected)
+        with pytest.raises(ValueError, match="weights"):
+            learned_confidence(modulus, weights="/nonexistent.pt")
+        with pytest.raises(ValueError, match="integers"):
+            learned_confidence(modulus + 0.5)

@@ -52,6 +52,7 @@ from torch_modulo._checks import (
 from torch_modulo.cfa import check_cfa, interpolate_wrapped, mosaic
 from torch_modulo.singleshot.confidence import UnwrapConfidence, unwrap_confidence
 from torch_modulo.singleshot.energy import Potential, UnwrapEnergy, is_representable, potential, unwrap_energy
+from torch_modulo.singleshot.learned import learned_confidence
 from torch_modulo.singleshot.methods import METHODS, REGISTRY, SolverSpec, make_spec, solve_on_device
 from torch_modulo.singleshot.workers import check_workers, run_planes, shutdown_workers
 
@@ -63,6 +64,7 @@ __all__ = [
     "UnwrapConfidence",
     "UnwrapEnergy",
     "is_representable",
+    "learned_confidence",
     "potential",
     "shutdown_workers",
     "unwrap_confidence",
@@ -226,7 +228,9 @@ def unwrap_single(
             less memory and gives a minimum spanning tree of the same pairs; 0: the whole image at once).
             ``"learned"``: ``weights``
             (default None: the weights shipped in the package; or a weights file), ``max_cuts`` (default 0: the
-            most likely tree alone; more: binary moves weighing every pair's probability after it). ``"lsq"``:
+            most likely tree alone; more: binary moves weighing every pair's probability after it), ``augment``
+            (default False: True averages the network over the image's four flips), ``tile`` (default 768: the
+            network predicts tiles of that side with their context, which bounds memory; 0: the whole image). ``"lsq"``:
             ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),
             ``cg_iterations`` (default 10: conjugate-gradient steps per round), ``colour`` (default True: the
             channels of an image share their weights; False: each channel alone).

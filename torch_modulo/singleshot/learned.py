@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -34,22 +34,27 @@ import torch.nn.functional as F
 from torch import nn
 
 from torch_modulo._checks import check_flag, check_int
-from torch_modulo.singleshot.grid import path_to_root, spanning_tree
+from torch_modulo.singleshot.grid import path_to_root
 
 __all__ = [
     "LEARNED_OPTIONS",
+    "TILE",
     "WEIGHTS",
     "EdgeJumpNet",
+    "check_weights",
     "decode_edges",
+    "decode_jumps",
     "edge_features",
     "edge_loss",
     "edge_targets",
+    "learned_confidence",
     "learned_k",
     "load_model",
     "predict_edges",
+    "predict_jumps",
     "refine_cut",
-    "check_weights",
     "solve_learned",
+    "tile_margin",
 ]
 
 #: The file name of the shipped weights inside ``torch_modulo/singleshot/weights``.
@@ -57,6 +62,9 @@ WEIGHTS = "edge_jump.pt"
 
 #: Channels the network sees at once: one image's RGB (a single channel is repeated three times).
 SLOTS = 3
+
+#: The two pair directions as ``(first end, second end)`` slices of a plane: to the right, and down.
+_DIRECTIONS = ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))
 
 
 def _wrap(d: torch.Tensor, period: float) -> torch.Tensor:
@@ -169,20 +177,46 @@ def _unflip(logp: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
     return logp
 
 
-def predict_edges(net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool = False) -> torch.Tensor:
-    """Jump log-probabilities of one image's channels: (C, 2, 2J + 1, H, W) float32 on the moduli's device.
+#: Side of the square of pixels the network predicts at once (:func:`predict_edges`, option ``tile``): larger
+#: images are predicted in tiles of that side plus the network's receptive radius (:func:`tile_margin`) on every
+#: side, so memory is bounded.
+TILE = 768
 
-    Args:
-        net: the network.
-        moduli: (C, H, W) moduli, C = 1 (seen as grey: repeated into the three slots) or 3 (seen together); other
-            channel counts are predicted one channel at a time.
-        bits: the sensor bit depth ``N``.
-        augment: average the log-probabilities over the four flips of the image (four times the work).
+#: A pair this likely (``p >= 0.99``) joins the reference region of :func:`decode_jumps`' confidence.
+_CONFIDENT = 0.99
+
+
+def tile_margin(net: EdgeJumpNet) -> int:
+    """The context a tile needs on every side: the network's receptive radius (``4 sum(dilations) + 18`` pixels),
+    plus the pair's second pixel, rounded up to a multiple of 4 (the pooling grid). 80 for the shipped network.
+
+    Example:
+        >>> tile_margin(EdgeJumpNet(width=4, dilations=(1, 2, 4, 8)))
+        80
     """
-    c, h, w = moduli.shape
-    if c not in (1, SLOTS):
-        return torch.cat([predict_edges(net, moduli[i : i + 1], bits, augment) for i in range(c)])
-    x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
+    radius = 4 * sum(net.config["dilations"]) + 18 + 1
+    return radius + (-radius % 4)
+
+
+def _tiles(n: int, tile: int, margin: int) -> list[tuple[int, int, int, int]]:
+    """Windows along one axis of ``n`` pixels: ``(start, stop, core_start, core_stop)``, cores of ``tile`` pixels.
+
+    One window covers everything when ``tile`` is 0 or ``n <= tile + 2 margin``; windows start at multiples of 4
+    (``tile`` is rounded down to one), so every window sees the whole-image pooling grid.
+    """
+    if tile <= 0 or n <= tile + 2 * margin:
+        return [(0, n, 0, n)]
+    core = max(4, tile - tile % 4)
+    out = []
+    for c0 in range(0, n, core):
+        c1 = min(n, c0 + core)
+        out.append((max(0, c0 - margin), min(n, c1 + margin), c0, c1))
+    return out
+
+
+def _window_logp(net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool) -> torch.Tensor:
+    """(3, 2, 2J + 1, h, w) jump log-probabilities of one (1, 3, h, w) window of moduli."""
+    _, _, h, w = x.shape
     ph, pw = -h % 4, -w % 4
     total = None
     for dims in ((), (-1,), (-2,), (-1, -2)) if augment else ((),):
@@ -192,17 +226,83 @@ def predict_edges(net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bo
             logp = torch.log_softmax(net(edge_features(xf, bits)).float(), dim=3)[0, :, :, :, :h, :w]
         logp = _unflip(logp, dims) if dims else logp
         total = logp if total is None else total + logp
-    logp = torch.log_softmax(total, dim=2) if augment else total
-    return logp[:1] if c == 1 else logp
+    return torch.log_softmax(total, dim=2) if augment else total
+
+
+def _windows(
+    net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool, tile: int
+) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
+    """Per tile of (C, H, W) moduli (C = 1 or 3): the tile's slices and its (C, 2, 2J + 1, h, w) log-probabilities.
+
+    A tile's window reaches the network's receptive radius beyond it (:func:`tile_margin`), so every pair of the
+    tile (its last column's pair to the next column included) is predicted from the same pixels as in the whole
+    image.
+    """
+    c, h, w = moduli.shape
+    x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
+    margin = tile_margin(net)
+    for y0, y1, cy0, cy1 in _tiles(h, tile, margin):
+        for x0, x1, cx0, cx1 in _tiles(w, tile, margin):
+            logp = _window_logp(net, x[..., y0:y1, x0:x1], bits, augment)
+            yield (slice(cy0, cy1), slice(cx0, cx1)), logp[:c, :, :, cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0]
+
+
+def predict_edges(
+    net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool = False, tile: int = 0
+) -> torch.Tensor:
+    """Jump log-probabilities of one image's channels: (C, 2, 2J + 1, H, W) float32 on the moduli's device.
+
+    Args:
+        net: the network.
+        moduli: (C, H, W) moduli, C = 1 (seen as grey: repeated into the three slots) or 3 (seen together); other
+            channel counts are predicted one channel at a time.
+        bits: the sensor bit depth ``N``.
+        augment: average the log-probabilities over the four flips of the image (four times the work).
+        tile: predict in tiles of this side (plus :func:`tile_margin` of context; 0: the whole image at once).
+            The result is the same up to rounding; the output itself still holds ``2 (2J + 1)`` values per pixel
+            and channel (:func:`predict_jumps` keeps two).
+    """
+    c, h, w = moduli.shape
+    if c not in (1, SLOTS):
+        return torch.cat([predict_edges(net, moduli[i : i + 1], bits, augment, tile) for i in range(c)])
+    out = None
+    for (ys, xs), logp in _windows(net, moduli, bits, augment, tile):
+        if out is None:
+            out = logp.new_empty(c, 2, logp.shape[2], h, w)
+        out[..., ys, xs] = logp
+    assert out is not None
+    return out
+
+
+def predict_jumps(
+    net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool = False, tile: int = TILE
+) -> tuple[np.ndarray, np.ndarray]:
+    """The most likely jump of every pair and its cost ``-log p``: what the tree decoder needs, two values per pair.
+
+    The network runs on the moduli's device, tile by tile (see :func:`predict_edges`); only the two values per pair
+    come back to the CPU, so memory grows with the tile, not with the image.
+
+    Returns:
+        ``(jump, cost)``: int16 (C, 2, H, W) jumps ``n`` in ``[-J, J]`` and float32 (C, 2, H, W) costs ``>= 0``
+        (direction 0: to the right neighbour, 1: to the one below).
+    """
+    c, h, w = moduli.shape
+    if c not in (1, SLOTS):
+        parts = [predict_jumps(net, moduli[i : i + 1], bits, augment, tile) for i in range(c)]
+        return np.concatenate([j for j, _ in parts]), np.concatenate([k for _, k in parts])
+    jump = np.empty((c, 2, h, w), dtype=np.int16)
+    cost = np.empty((c, 2, h, w), dtype=np.float32)
+    for (ys, xs), logp in _windows(net, moduli, bits, augment, tile):
+        best, index = logp.max(dim=2)
+        jump[:, :, ys, xs] = index.cpu().numpy() - net.max_jump
+        cost[:, :, ys, xs] = (-best).clamp_min(0.0).cpu().numpy()
+    return jump, cost
 
 
 def decode_edges(
     modulus: np.ndarray, logp: np.ndarray, bits: int, max_jump: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Integer ``k`` of one plane from its jump log-probabilities: a maximum-likelihood spanning tree.
-
-    Every horizontal and vertical pair takes its most likely jump ``n`` (probability ``p``); Kruskal's algorithm
-    joins the pairs from the most confident (``-log p`` smallest) and ``k`` is integrated along the tree.
+    """Integer ``k`` of one plane from its jump log-probabilities: :func:`decode_jumps` of the most likely jumps.
 
     Args:
         modulus: (H, W) integer-valued moduli.
@@ -210,55 +310,94 @@ def decode_edges(
         bits: the sensor bit depth ``N``.
         max_jump: ``J`` (default: from ``logp``).
 
-    Returns:
-        ``(k, confidence)``: int64 (H, W) rollover counts with ``k = 0`` at pixel 0 (the caller anchors them) and
-        float64 (H, W) probability that every pair on the path to pixel 0 is right.
-
     Example:
         >>> m = np.array([[200, 10, 60]])
         >>> logp = np.full((2, 3, 1, 3), -30.0); logp[:, 1] = 0.0  # sure that every wrapped step is right
         >>> decode_edges(m, logp, 8)[0].tolist()
         [[0, 1, 1]]
     """
+    j = (logp.shape[1] - 1) // 2 if max_jump is None else int(max_jump)
+    best = logp.argmax(axis=1)
+    cost = np.maximum(-np.take_along_axis(logp, best[:, None], 1)[:, 0], 0.0)
+    return decode_jumps(modulus, best.astype(np.int64) - j, cost, bits)
+
+
+def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
+    """Integer ``k`` of one plane from every pair's most likely jump: a maximum-likelihood spanning tree.
+
+    Kruskal's algorithm joins the pairs from the most confident (``cost = -log p`` smallest) and ``k`` is integrated
+    along the tree with each pair's jump, so ``I_m + k 2^N`` is exact for integer ``k``.
+
+    The confidence of a pixel is the probability of the least likely pair on its tree path to the reference region
+    (the largest region joined by pairs with ``p >= 0.99``). The tree maximises that bottleneck over all paths, so
+    it is the pixel's best chain of evidence; it is at least 0.99 inside the reference region.
+
+    Args:
+        modulus: (H, W) integer-valued moduli.
+        jump: (2, H, W) integer jumps ``n`` of every pair (direction 0: to the right neighbour, 1: to the one below;
+            the last column's and last row's entries are ignored).
+        cost: (2, H, W) their costs ``-log p >= 0``.
+        bits: the sensor bit depth ``N``.
+
+    Returns:
+        ``(k, confidence)``: int64 (H, W) rollover counts with ``k = 0`` at a pixel of the reference region (the
+        caller anchors them) and float64 (H, W) confidences in ``(0, 1]``.
+
+    Example:
+        >>> m = np.array([[200, 10, 60]])
+        >>> k, confidence = decode_jumps(m, np.zeros((2, 1, 3), int), np.full((2, 1, 3), 0.5), 8)
+        >>> k.tolist(), confidence.round(2).tolist()
+        ([[0, 1, 1]], [[1.0, 0.61, 0.61]])
+    """
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+
+    from torch_modulo.singleshot.pathfollow import _pair_graph
+
     m = np.asarray(modulus, dtype=np.int64)
     h, w = m.shape
-    if h * w <= 1:
+    n = h * w
+    if n <= 1:
         return np.zeros((h, w), dtype=np.int64), np.ones((h, w))
-    j = (logp.shape[1] - 1) // 2 if max_jump is None else int(max_jump)
+    cost = np.asarray(cost)
+    # scipy reads a stored 0 as "no edge": every cost is shifted a little (the tree is the same).
+    graph = _pair_graph(cost[0][:, :-1].astype(np.float64) + 1e-9, cost[1][:-1, :].astype(np.float64) + 1e-9)
+    confident = graph.copy()
+    confident.data = (confident.data <= -np.log(_CONFIDENT) + 1e-9).astype(np.int8)
+    confident.eliminate_zeros()
+    _, labels = connected_components(confident, directed=False)
+    del confident
+    root = int(np.argmax(labels == np.bincount(labels).argmax()))
+    del labels
+    tree = minimum_spanning_tree(graph, overwrite=True)
+    del graph
+    _, parent = breadth_first_order(tree, root, directed=False, return_predecessors=True)
+    del tree
+    parent = np.where(parent < 0, np.arange(n, dtype=parent.dtype), parent).astype(np.int64)
+    # Every pixel's step to its parent, k_child - k_parent, and the cost of the pair between them, by chunks.
+    flat_m, flat_jump, flat_cost = m.ravel(), np.asarray(jump).reshape(2, n), cost.reshape(2, n)
     period, half = 1 << bits, 1 << (bits - 1)
-    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
-    firsts, seconds, costs, steps = [], [], [], []
-    for direction, (a, b) in enumerate(((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))):
-        lp = logp[direction][(slice(None), *a)]
-        best = lp.argmax(axis=0)
-        jump = best.astype(np.int64) - j
-        wd = np.mod(m[b] - m[a] + half, period) - half
-        firsts.append(ids[a].ravel())
-        seconds.append(ids[b].ravel())
-        steps.append((wd + period * jump - (m[b] - m[a])).ravel() // period)  # k_b - k_a
-        costs.append(np.maximum(-np.take_along_axis(lp, best[None], 0)[0].ravel(), 0.0).astype(np.float64))
-    first, second, step, cost = map(np.concatenate, (firsts, seconds, steps, costs))
-    parent = spanning_tree(h * w, first, second, cost + 1e-9)
-    # The pair joining every pixel to its parent: horizontal pairs come first (row-major), then vertical ones.
-    child = np.arange(h * w, dtype=np.int64)
-    low = np.minimum(child, parent)
-    vertical = np.abs(parent - child) == w
-    pos = np.where(vertical, h * (w - 1) + low, (low // w) * (w - 1) + low % w)
-    root = parent == child
-    pos = np.where(root, 0, pos)
-    sign = np.where(low == parent, 1, -1)  # the pair is stored from its lower index to its higher one
-    k_step = np.where(root, 0, sign * step[pos])
-    c_step = np.where(root, 0.0, cost[pos])
+    k_step = np.zeros(n, dtype=np.int64)
+    c_step = np.zeros(n, dtype=np.float32)
+    for s in range(0, n, 1 << 20):
+        child = np.arange(s, min(n, s + (1 << 20)), dtype=np.int64)
+        par = parent[child]
+        first = np.minimum(child, par)  # the pair is stored at its first pixel (left or upper end)
+        direction = (np.abs(par - child) == w).astype(np.int64)
+        jump_c = flat_jump[direction, first].astype(np.int64)
+        d = flat_m[np.maximum(child, par)] - flat_m[first]
+        step = (np.mod(d + half, period) - half + period * jump_c - d) // period  # k_second - k_first
+        k_step[child] = np.where(child == first, -step, step)
+        c_step[child] = flat_cost[direction, first]
+    is_root = parent == np.arange(n)
+    k_step[is_root] = 0
+    c_step[is_root] = 0.0
     k = path_to_root(parent, k_step)
-    confidence = np.exp(-path_to_root(parent, c_step))
+    confidence = np.exp(-path_to_root(parent, c_step, np.maximum).astype(np.float64))
     return k.reshape(h, w), confidence.reshape(h, w)
 
 
 #: Cost of a jump outside ``-J .. J`` (and the most any jump costs): ``-log`` of a negligible probability.
 _MAX_COST = 30.0
-
-#: The two pair directions as ``(first end, second end)`` slices of a plane: to the right, and down.
-_DIRECTIONS = ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))
 
 
 def _pair_costs(m: np.ndarray, k: np.ndarray, cost: np.ndarray, period: int, shift_a: int, shift_b: int) -> list:
@@ -334,25 +473,86 @@ def refine_cut(modulus: np.ndarray, k: np.ndarray, logp: np.ndarray, bits: int, 
 
 
 def learned_k(
-    moduli: np.ndarray, bits: int, net: EdgeJumpNet | None = None, max_cuts: int = 0, augment: bool = False
+    moduli: np.ndarray | torch.Tensor,
+    bits: int,
+    net: EdgeJumpNet | None = None,
+    max_cuts: int = 0,
+    augment: bool = False,
+    tile: int = TILE,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``k`` and the path confidence of one image's channels (C, H, W), up to one constant per channel.
+    """``k`` and the confidence of one image's channels (C, H, W), up to one constant per channel.
+
+    The network runs on its own device (the moduli are moved there), tile by tile; the decoding on the CPU. With
+    ``max_cuts``, the full log-probabilities are kept for :func:`refine_cut` (``2 (2J + 1)`` floats per pixel and
+    channel) and the confidence is that of the tree before the cuts.
 
     Example:
         >>> ramp = np.arange(0, 1200, 40).reshape(1, 1, -1).repeat(8, axis=1)
         >>> k, confidence = learned_k(ramp % 256, 8)
-        >>> bool(((ramp % 256) + 256 * k == ramp).all())
+        >>> restored = ramp % 256 + 256 * k
+        >>> bool((restored - restored.min() == ramp).all())
         True
     """
     net = load_model() if net is None else net
     device = next(net.parameters()).device
-    moduli = np.asarray(moduli, dtype=np.int64)
-    logp = predict_edges(net, torch.from_numpy(moduli).to(device), bits, augment).cpu().numpy()
-    out = [decode_edges(m, lp, bits, net.max_jump) for m, lp in zip(moduli, logp, strict=True)]
-    k = np.stack([k for k, _ in out])
+    x = torch.as_tensor(moduli).to(device=device, dtype=torch.int64)
+    planes = x.cpu().numpy()
     if max_cuts:
-        k = np.stack([refine_cut(m, kk, lp, bits, max_cuts) for m, kk, lp in zip(moduli, k, logp, strict=True)])
-    return k, np.stack([c for _, c in out])
+        logp = predict_edges(net, x, bits, augment, tile).cpu().numpy()
+        out = [decode_edges(m, lp, bits, net.max_jump) for m, lp in zip(planes, logp, strict=True)]
+        k = np.stack([refine_cut(m, kk, lp, bits, max_cuts) for m, (kk, _), lp in zip(planes, out, logp, strict=True)])
+        return k, np.stack([c for _, c in out])
+    jump, cost = predict_jumps(net, x, bits, augment, tile)
+    out = [decode_jumps(m, j, c, bits) for m, j, c in zip(planes, jump, cost, strict=True)]
+    return np.stack([k for k, _ in out]), np.stack([c for _, c in out])
+
+
+def learned_confidence(
+    modulus: torch.Tensor,
+    bits: int = 8,
+    *,
+    weights: str | Path | None = None,
+    augment: bool = False,
+    tile: int = TILE,
+) -> torch.Tensor:
+    """Per-pixel confidence of ``unwrap_single(modulus, bits, method="learned")``, from the network's probabilities.
+
+    The probability the network gives the least likely pair on the pixel's path, in the decoder's spanning tree,
+    to the reference region (the largest region joined by pairs it is at least 99% sure of; see
+    :func:`decode_jumps`). Low values mark pixels whose level hangs on an unsure jump: check them, or take a second
+    exposure there. Like :func:`~torch_modulo.unwrap_confidence` (which reads the restored image alone), it cannot
+    flag a region the network puts at a wrong level with confidence. Runs the network again (same options as the
+    method).
+
+    Args:
+        modulus: wrapped values in ``[0, 2**bits)``, floating, (B, C, H, W), (C, H, W) or (H, W), on any device.
+        bits: sensor bit depth ``N``.
+        weights: ``None`` (the shipped weights) or a weights file, as for the method.
+        augment: average the network over the four flips of the image, as for the method.
+        tile: tile side of the network's prediction, as for the method.
+
+    Returns:
+        Confidence in ``(0, 1]`` with the shape, dtype and device of ``modulus``.
+
+    Example:
+        >>> ramp = torch.arange(0.0, 1200.0, 40.0).reshape(1, -1).repeat(8, 1)
+        >>> confidence = learned_confidence(ramp % 256)
+        >>> confidence.shape, bool((confidence > 0.5).all())
+        (torch.Size([8, 30]), True)
+    """
+    from torch_modulo._checks import check_bits, check_floating, check_image_shape, check_modulus, check_tensor
+
+    check_tensor(modulus, "modulus")
+    check_floating(modulus, "modulus")
+    check_image_shape(modulus, "modulus", 2, 4)
+    bits = check_bits(bits, modulus.dtype)
+    check_modulus(modulus, bits)
+    net = load_model(check_weights(weights, "weights"), device=modulus.device)
+    augment, tile = check_flag(augment, "augment"), _check_tile(tile, "tile")
+    batch = modulus.detach().reshape(-1, *((1, 1, *modulus.shape)[-3:]))
+    maps = [learned_k(image, bits, net, 0, augment, tile)[1] for image in batch]
+    out = torch.from_numpy(np.stack(maps)) if maps else torch.zeros(modulus.shape, dtype=torch.float64)
+    return out.to(device=modulus.device, dtype=modulus.dtype).reshape(modulus.shape)
 
 
 def check_weights(value: object, name: str) -> str | None:
@@ -375,29 +575,44 @@ def _check_cuts(value: object, name: str) -> int:
     return check_int(value, name, 0)
 
 
+def _check_tile(value: object, name: str) -> int:
+    tile = check_int(value, name, 0)
+    if 0 < tile < 4:
+        raise ValueError(f"{name} must be 0 (no tiles) or at least 4 pixels; got {value!r}")
+    return tile
+
+
 #: The options of ``method="learned"``: name -> (default, check). ``weights``: ``None`` (the shipped weights) or
 #: a weights file; ``max_cuts``: the most binary moves of :func:`refine_cut` after the tree (0: the tree alone);
-#: ``augment``: average the network's output over the four flips of the image (:func:`predict_edges`).
+#: ``augment``: average the network's output over the four flips of the image (:func:`predict_edges`); ``tile``:
+#: the side of the tiles the network predicts at once (:data:`TILE`; 0: the whole image).
 LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
     "weights": (None, check_weights),
     "max_cuts": (0, _check_cuts),
     "augment": (False, check_flag),
+    "tile": (TILE, _check_tile),
 }
+
+
+def _learned_ks(moduli: np.ndarray | torch.Tensor, spec: Any) -> np.ndarray:
+    """``k`` (not anchored) of one image's channels under ``spec``'s options, the network on the moduli's device."""
+    device = moduli.device if isinstance(moduli, torch.Tensor) else torch.device("cpu")
+    net = load_model(spec.option("weights"), device=device)
+    options = (int(spec.option("max_cuts")), spec.option("augment"), int(spec.option("tile")))
+    return learned_k(moduli, spec.params.bits, net, *options)[0]
 
 
 def solve_learned(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:
     """The registry's solver: (G, H, W) int64 moduli of one image's channels to restored counts (not anchored).
 
-    Options (``spec.option``): ``weights`` and ``max_cuts`` (:data:`LEARNED_OPTIONS`).
+    Options (``spec.option``): :data:`LEARNED_OPTIONS`.
     """
     from torch_modulo.singleshot.graphcut import plane_energy
     from torch_modulo.singleshot.grid import pair_offsets
 
     start = time.perf_counter()
     p = spec.params
-    weights = spec.option("weights")
-    k, _ = learned_k(moduli, p.bits, load_model(weights), int(spec.option("max_cuts")), spec.option("augment"))
-    restored = moduli + p.period * k
+    restored = moduli + p.period * _learned_ks(moduli, spec)
     for plane, st in zip(restored, stats, strict=True):
         st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
         st.tick("learned", start)
@@ -409,19 +624,8 @@ def solve_learned_tensor(moduli: torch.Tensor, spec: Any) -> torch.Tensor:
 
     The network runs where the moduli are (a GPU when they are there); the integer decoding runs on the CPU.
     """
-    p = spec.params
-    net = load_model(spec.option("weights"), device=moduli.device)
-    ks = []
-    for image in moduli:
-        logp = predict_edges(net, image.to(torch.int64), p.bits, spec.option("augment")).cpu().numpy()
-        planes = image.to("cpu", torch.float64).numpy().astype(np.int64)
-        k = np.stack([decode_edges(m, lp, p.bits, net.max_jump)[0] for m, lp in zip(planes, logp, strict=True)])
-        if spec.option("max_cuts"):
-            cuts = int(spec.option("max_cuts"))
-            k = np.stack([refine_cut(m, kk, lp, p.bits, cuts) for m, kk, lp in zip(planes, k, logp, strict=True)])
-        ks.append(k)
-    shape = moduli.shape
-    return torch.from_numpy(np.stack(ks)) if ks else torch.zeros(shape, dtype=torch.int64)
+    ks = [_learned_ks(image, spec) for image in moduli]
+    return torch.from_numpy(np.stack(ks)) if ks else torch.zeros(moduli.shape, dtype=torch.int64)
 
 
 # ------------------------------------------------------------------------------------------------------- training
