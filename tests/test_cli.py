@@ -260,6 +260,20 @@ class TestUnwrap:
         assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--confidence") == 0
         assert (tmp_path / "out" / "img.confidence.exr").exists()
 
+    def test_single_shot_learned_confidence(self, tmp_path: Path) -> None:
+        from torch_modulo.singleshot import learned_confidence
+
+        (tmp_path / "in").mkdir()
+        counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
+        modulus = torch.remainder(counts, 256)
+        write_image(tmp_path / "in" / "img.png", modulus, {"bits": 8})
+        args = ("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--method", "learned", "--confidence")
+        assert _cli(*args) == 0
+        restored = read_image(tmp_path / "out" / "img.exr", dtype=torch.float64)
+        assert torch.equal(torch.remainder(restored, 256), modulus)
+        confidence = read_image(tmp_path / "out" / "img.confidence.exr", dtype=torch.float64)
+        torch.testing.assert_close(confidence, learned_confidence(modulus.double(), 8).float().double())
+
 
 # ---------------------------------------------------------------------------------------------------- tonemap
 

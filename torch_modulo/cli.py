@@ -481,7 +481,8 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         action="store_true",
         help="with --single: also write OUT/<image>.confidence.exr, unwrap_confidence's map (1: the rollover count "
         "is determined by the image; 0: it was guessed, take a second exposure there; of a mosaic, per colour "
-        "plane, one value per photosite)",
+        "plane, one value per photosite); with --method learned (not a mosaic), learned_confidence's map from "
+        "the network's probabilities",
     )
     unwrap.add_argument(
         "--method",
@@ -493,8 +494,8 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         help="multi shot: the rule, robust (default; exact for every ratio up to 2^bits without noise, and the one "
         "that decodes with a noise model) or paper (Eq. 6 as printed, noise-free); with --single: the method of "
         "unwrap_single, guided (path following, channels together; the default), fast (the paper's graph cut on "
-        "a cheaper schedule) or paper (Eqs. 3-5 from k = 0, slow); --solver is its deprecated former name "
-        "(--single only)",
+        "a cheaper schedule), paper (Eqs. 3-5 from k = 0, slow), lsq (DCT least squares) or learned (the shipped "
+        "network's rollover jumps, decoded exactly); --solver is its deprecated former name (--single only)",
     )
     unwrap.add_argument(
         "--cfa",

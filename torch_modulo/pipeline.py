@@ -512,7 +512,12 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
         **colour,
     }
     if options.get("confidence"):
-        confidence = restored_confidence(counts.double(), bits, cfa)
+        if options["solver"] == "learned" and cfa is None:  # the network's own probabilities
+            from torch_modulo.singleshot import learned_confidence
+
+            confidence = learned_confidence(image.double(), bits)
+        else:
+            confidence = restored_confidence(counts.double(), bits, cfa)
         write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})
     info: dict[str, Any] = {}
     counts_truth = matching_truth(truth, counts.shape, cfa)
