@@ -76,3 +76,23 @@ def test_harness_parses_options() -> None:
         "potential": "linear",
         "colour": False,
     }
+
+
+class TestRegionMerge:
+    def test_a_region_shifted_by_a_period_is_merged_back(self) -> None:
+        import torch
+
+        from research import region_merge
+        from torch_modulo.singleshot.learned import edge_targets
+
+        truth = np.floor(np.add.outer(np.arange(24) * 9.0, np.arange(24) * 7.0))
+        truth[6:14, 8:16] += 700  # a bright block behind steep borders
+        m = np.mod(truth, 256).astype(np.int64)
+        target, _ = edge_targets(torch.from_numpy(truth)[None, None], 8, 5)
+        logp = np.full((2, 11, 24, 24), -8.0)
+        np.put_along_axis(logp, target[0, 0].numpy()[:, None], -0.01, axis=1)
+        k_true = (truth.astype(np.int64) - m) // 256
+        k = k_true.copy()
+        k[6:14, 8:16] -= 1  # as if one wrong tree pair had carried the block a period down
+        k_merged = region_merge.merge_regions(m, k, logp, 8, tau=0.1)
+        assert np.array_equal(k_merged - k_merged[0, 0], k_true - k_true[0, 0])
