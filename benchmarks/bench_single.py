@@ -2,8 +2,9 @@
 
 For every scene under ``--data`` (``.exr`` and ``.hdr``, all folders, sorted by path), build the true counts ``I``
 and the 8-bit modulus ``I_m = I mod 256`` of each protocol (:mod:`torch_modulo.protocols`), unwrap it with each
-method, and print one row per scene, then per protocol and method a summary over all scenes and another over the
-validation scenes (``protocols.VALIDATION_SOURCES``; a learned method must not train on them): mean exact-k, mean
+method, and print one row per scene, then per protocol and method a summary over all scenes, one over the training
+scenes (``protocols.TRAIN_SOURCES``, the only ones a learned method may train on) and one over the validation
+scenes (``protocols.VALIDATION_SOURCES``; a learned method must not train on them): mean exact-k, mean
 rolled-over right (exact-k over the values whose true ``k > 0``), mean PSNR (peak 4095, 1023 under A10; after
 aligning each channel's global rollover offset), scenes recovered perfectly, seconds per megapixel per channel
 (total and median over scenes) and, where ``paper`` ran, the energy reached relative to the faithful solver (plus
@@ -56,8 +57,8 @@ from torch_modulo.singleshot import unwrap_energy, unwrap_single
 BITS = 8
 PERIOD = 2**BITS
 MEMORY_PEAK = 4095.0
-#: Summary groups: every scene, and the validation side of the split.
-GROUPS = ("all", "validation")
+#: Summary groups: every scene, and each side of the split.
+GROUPS = ("all", "train", "validation")
 
 
 # ----------------------------------------------------------------------------------------------------------- scenes
@@ -221,7 +222,8 @@ def print_summary(proto: str, group: str, summary: dict[str, Any], methods: list
 
 
 def run_protocol(proto: str, scenes: list[Path], args: argparse.Namespace) -> dict[str, Any]:
-    """One protocol over every scene: a row per scene, then the summaries of all and of the validation scenes."""
+    """One protocol over every scene: a row per scene, then the summaries of all, the training and the validation
+    scenes."""
     with_energy = args.energy or "paper" in args.methods
     print(f"\n== protocol {proto}: {len(scenes)} scenes, longest side {args.scale}, methods {args.methods}")
     print(header(args.methods, with_energy), flush=True)
