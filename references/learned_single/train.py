@@ -119,11 +119,20 @@ def train(args: argparse.Namespace) -> dict[str, object]:
     rng = np.random.default_rng(args.seed)
     scenes = load_train_scenes(args.scene_side)
     print(f"loaded {len(scenes)} training scenes", flush=True)
-    net = EdgeJumpNet(width=args.width, max_jump=args.max_jump)
+    net = EdgeJumpNet(width=args.width, max_jump=args.max_jump, dilations=tuple(args.dilations))
     if args.init is not None:  # fine-tune: start from earlier weights (same width and max_jump)
         record = torch.load(args.init, map_location="cpu", weights_only=True)
-        net.load_state_dict({k: v.float() for k, v in record["state"].items()})
-        print(f"starting from {args.init}", flush=True)
+        state = {k: v.float() for k, v in record["state"].items()}
+        # Bottleneck blocks the earlier network lacks (more --dilations) start near zero: their residual adds
+        # almost nothing, so the network starts as the earlier one and the new blocks still get gradients.
+        new = [k for k in net.state_dict() if k not in state]
+        if any(not k.startswith("mid.") for k in new):
+            raise SystemExit(f"--init {args.init} does not match this network: missing {new}")
+        net.load_state_dict(state, strict=False)
+        with torch.no_grad():
+            for k in new:
+                net.state_dict()[k].mul_(0.01)
+        print(f"starting from {args.init}" + (f" (new near-zero blocks: {new})" if new else ""), flush=True)
     n_params = sum(p.numel() for p in net.parameters())
     print(f"parameters: {n_params}", flush=True)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
@@ -187,6 +196,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--crop", type=int, default=96)
     ap.add_argument("--width", type=int, default=16)
     ap.add_argument("--max-jump", type=int, default=15)
+    ap.add_argument("--dilations", type=int, nargs="+", default=[1, 2, 4, 8], help="bottleneck dilations")
     ap.add_argument("--lr", type=float, default=2e-3)
     ap.add_argument("--hard-weight", type=float, default=5.0)
     ap.add_argument("--procedural", type=float, default=0.3, help="share of procedural crops")
