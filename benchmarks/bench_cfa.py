@@ -26,7 +26,7 @@ Summary: means over scenes, scenes recovered perfectly, and the gaps in exact-k 
 A JSON line with the summary ends the output.
 
 Examples:
-    python benchmarks/bench_cfa.py                                              # every scene, guided, RGGB
+    python benchmarks/bench_cfa.py                                              # every scene, default method, RGGB
     python benchmarks/bench_cfa.py --scenes qt-preview/landscape.hdr --scale 128   # a smoke run
     python benchmarks/bench_cfa.py --method lsq --cfa GRBG
 """
@@ -46,6 +46,7 @@ import torch
 import torch_modulo as tm
 from torch_modulo import protocols
 from torch_modulo.cfa import CFA_PATTERNS, DEMOSAIC_METHODS, merge_planes, split_planes
+from torch_modulo.singleshot import METHODS
 
 BITS = 8
 PERIOD = 2**BITS
@@ -176,7 +177,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0: all)")
     ap.add_argument("--scale", type=int, default=512, help="longest side after downsampling")
     ap.add_argument("--cfa", default="RGGB", choices=CFA_PATTERNS)
-    ap.add_argument("--method", default="guided", help="unwrap_single method with options (name:key=value,...)")
+    ap.add_argument(
+        "--method",
+        default=METHODS[0],
+        help="unwrap_single method with options (name:key=value,...; default: unwrap_single's, %(default)s)",
+    )
     ap.add_argument("--demosaic", default=DEMOSAIC_METHODS[0], choices=DEMOSAIC_METHODS)
     ap.add_argument("--workers", type=int, default=1)
     return ap.parse_args(argv)

@@ -305,7 +305,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument(
         "--methods",
         nargs="+",
-        default=["guided", "fast", "paper", "skimage"],
+        default=["learned", "guided", "fast", "paper", "skimage"],
         help="unwrap_single methods with options (name:key=value,...) and 'skimage' (default: %(default)s)",
     )
     ap.add_argument("--scenes", nargs="+", default=None, help="only these scenes (paths relative to --data)")

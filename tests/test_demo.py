@@ -29,7 +29,7 @@ def test_run_demo_writes_every_file_and_true_numbers(tmp_path: Path) -> None:
         summary["multi_shot"]["median_relative_error_modulo"] < summary["multi_shot"]["median_relative_error_intensity"]
     )
     assert summary["single_shot"]["exact_k"] == 1.0
-    assert summary["single_shot"]["method"] == "guided"
+    assert summary["single_shot"]["method"] == "learned"
     assert summary["single_shot"]["low_confidence_share"] == 0.0  # smooth: every level is determined
     assert summary["single_shot"]["wrong_k_flagged_low_confidence"] == 1.0  # (nothing wrong to flag)
     for name in summary["files"]:

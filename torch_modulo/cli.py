@@ -308,8 +308,8 @@ def _add_demo(commands: Any) -> None:
         "--solver",
         action=_MethodOption,
         dest="method",
-        default="guided",
-        choices=("guided", "fast", "paper"),
+        default="learned",
+        choices=("learned", "guided", "fast", "paper"),
         help="single-shot method of unwrap_single (default: %(default)s; fast and paper: the paper's graph cut; "
         "--solver is its deprecated former name)",
     )
@@ -493,9 +493,9 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         metavar="METHOD",
         help="multi shot: the rule, robust (default; exact for every ratio up to 2^bits without noise, and the one "
         "that decodes with a noise model) or paper (Eq. 6 as printed, noise-free); with --single: the method of "
-        "unwrap_single, guided (path following, channels together; the default), fast (the paper's graph cut on "
-        "a cheaper schedule), paper (Eqs. 3-5 from k = 0, slow), lsq (DCT least squares) or learned (the shipped "
-        "network's rollover jumps, decoded exactly); --solver is its deprecated former name (--single only)",
+        "unwrap_single, learned (the shipped network's rollover jumps, decoded exactly; the default), guided (path "
+        "following, channels together), fast (the paper's graph cut on a cheaper schedule), paper (Eqs. 3-5 from "
+        "k = 0, slow) or lsq (DCT least squares); --solver is its deprecated former name (--single only)",
     )
     unwrap.add_argument(
         "--cfa",

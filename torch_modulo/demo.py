@@ -4,8 +4,8 @@
 
 1. Scale the radiance so that the 99.9th percentile of luminance reads 4095 counts at exposure 1 (a 12-bit scene,
    as in the paper's single-shot experiments), and capture it with an 8-bit modulo and an 8-bit intensity sensor.
-2. Single shot: unwrap the one modulus image (Eqs. 3-5; by default with ``unwrap_single``'s default method,
-   ``"guided"``; ``method="fast"`` or ``"paper"`` for the paper's graph cut).
+2. Single shot: unwrap the one modulus image (by default with ``unwrap_single``'s default method, ``"learned"``;
+   ``method="guided"`` for path following, ``"fast"`` or ``"paper"`` for the paper's graph cut, Eqs. 3-5).
 3. Multi shot: three modulo captures (neighbouring ratio 64, the shortest without rollover), unwrapped by rollover
    counting (Eqs. 6-7), against the conventional merge of three clipped intensity captures with the same exposures.
 4. Tone-map everything with Larson et al.'s histogram adjustment (sRGB-encoded) and write EXRs, PNGs, one
@@ -203,7 +203,7 @@ def run_demo(
     bits: int = 8,
     ratio: float = 64.0,
     workers: int | None = None,
-    method: str = "guided",
+    method: str = "learned",
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Run the demo and return its summary (also written to ``out_dir/summary.json``).
@@ -216,7 +216,7 @@ def run_demo(
         bits: the simulated sensors' bit depth.
         ratio: neighbouring exposure ratio of the multi-shot captures (at most ``2**bits - 1``).
         workers: worker processes for the single-shot unwrapping (default: one per core when it pays).
-        method: the :func:`~torch_modulo.unwrap_single` method (``"guided"``, ``"fast"`` or ``"paper"``).
+        method: the :func:`~torch_modulo.unwrap_single` method (``"learned"``, ``"guided"``, ``"fast"`` or ``"paper"``).
         log: where progress lines go.
 
     Returns:

@@ -14,9 +14,9 @@ class TestRegistry:
         assert {"paper", "fast", "guided"} <= set(METHODS)
 
     def test_methods_is_derived_from_the_registry(self) -> None:
-        assert METHODS == tuple(REGISTRY) and METHODS[0] == "guided"
+        assert METHODS == tuple(REGISTRY) and METHODS[0] == "learned"
         # The channels of an image are solved together where the method shares information across them.
-        assert [name for name in METHODS if REGISTRY[name].joint_channels] == ["guided", "learned"]
+        assert [name for name in METHODS if REGISTRY[name].joint_channels] == ["learned", "guided"]
 
     @pytest.mark.parametrize("method", METHODS)
     def test_option_defaults_pass_their_own_checks(self, method: str) -> None:

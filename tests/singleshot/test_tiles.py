@@ -162,8 +162,8 @@ class TestGuidedInBlocks:
     @pytest.mark.parametrize("options", [{}, {"colour": False}, {"denoise": 0.7}])
     def test_blocks_equal_the_whole_image_on_smooth_images(self, channels: int, options: dict) -> None:
         truth = smooth_counts(260, 240, channels=channels, seed=channels)
-        whole = unwrap_single(truth % 256, tile_pixels=0, **options)
-        blocks = unwrap_single(truth % 256, tile_pixels=SMALL, **options)
+        whole = unwrap_single(truth % 256, method="guided", tile_pixels=0, **options)
+        blocks = unwrap_single(truth % 256, method="guided", tile_pixels=SMALL, **options)
         assert torch.equal(blocks, whole)
         if not options:
             assert torch.equal(blocks, truth)
@@ -176,7 +176,10 @@ class TestGuidedInBlocks:
         )
         truth = truth - truth.min()
         modulus = truth % 256
-        assert torch.equal(unwrap_single(modulus, tile_pixels=SMALL), unwrap_single(modulus, tile_pixels=0))
+        guided = {"method": "guided"}
+        assert torch.equal(
+            unwrap_single(modulus, tile_pixels=SMALL, **guided), unwrap_single(modulus, tile_pixels=0, **guided)
+        )
 
     def test_hook_runs_for_a_small_threshold(self, monkeypatch: pytest.MonkeyPatch) -> None:
         calls: list[int] = []
@@ -188,9 +191,9 @@ class TestGuidedInBlocks:
 
         monkeypatch.setattr(pathfollow, "_forest_graph", spy)
         truth = smooth_counts(150, 140, seed=4)[0]
-        assert torch.equal(unwrap_single(truth % 256, tile_pixels=SMALL), truth)
+        assert torch.equal(unwrap_single(truth % 256, method="guided", tile_pixels=SMALL), truth)
         assert calls == [SMALL]
-        unwrap_single(truth % 256)  # below the default threshold: the whole image at once
+        unwrap_single(truth % 256, method="guided")  # below the default threshold: the whole image at once
         assert calls == [SMALL]
 
     @pytest.mark.parametrize(("h", "w"), [(90, 400), (400, 60), (1, 3000), (3000, 1), (200, 200)])

@@ -107,7 +107,7 @@ class TestUnwrapSingle:
     def test_info_layout(self) -> None:
         modulus = torch.stack([scene("ramp", 16), scene("steps", 16)]).unsqueeze(0) % 256  # (1, 2, 16, 16)
         out, info = unwrap_single(modulus, return_info=True)
-        assert isinstance(info, SingleShotInfo) and info.method == "guided"
+        assert isinstance(info, SingleShotInfo) and info.method == "learned"
         assert info.iterations.shape == info.cuts.shape == info.energy.shape == info.seconds.shape == (1, 2)
         assert len(info.energies) == 1 and len(info.energies[0]) == 2
         assert bool((info.cuts >= info.iterations).all())
@@ -152,10 +152,12 @@ class TestUnwrapSingle:
         module = SingleShotUnwrap(bits=8, method="fast", init="quality")
         assert torch.equal(module(modulus), unwrap_single(modulus, method="fast", init="quality"))
         assert torch.equal(SingleShotUnwrap()(modulus), unwrap_single(modulus))
-        assert SingleShotUnwrap().method == "guided"  # the module and the function share their default
-        assert torch.equal(SingleShotUnwrap(colour=False)(modulus), unwrap_single(modulus, colour=False))
+        assert SingleShotUnwrap().method == "learned"  # the module and the function share their default
+        guided = SingleShotUnwrap(method="guided", colour=False)
+        assert torch.equal(guided(modulus), unwrap_single(modulus, method="guided", colour=False))
         assert torch.equal(
-            unwrap_single(modulus, denoise=np.float32(0.7), colour=np.bool_(True)), unwrap_single(modulus, denoise=0.7)
+            unwrap_single(modulus, method="guided", denoise=np.float32(0.7), colour=np.bool_(True)),
+            unwrap_single(modulus, method="guided", denoise=0.7),
         )
 
     def test_guided_colour_shares_the_tree(self) -> None:

@@ -3,16 +3,18 @@
 :func:`unwrap_single` (and its module twin :class:`SingleShotUnwrap`) chooses the rollover counts ``k`` with one of
 the methods of :data:`METHODS`:
 
-- ``"guided"`` (default): reliability-guided path following (Herraez et al. 2002) without a graph cut, the
-  channels of a colour image on one shared tree, so that a step that is steep in one channel is avoided in all
-  (:mod:`torch_modulo.singleshot.pathfollow`). Under strong noise in the low bits pass ``denoise=0.7`` (or use
-  ``"fast"``).
+- ``"learned"`` (default): a small network (weights shipped in the package) predicts the rollover jump of every
+  neighbour pair, the channels of a colour image seen together; an exact integer decoder (most likely spanning
+  tree, optionally min-cut moves) turns it into ``k`` (:mod:`torch_modulo.singleshot.learned`). The network runs on
+  the input's device, the tree on the CPU.
+- ``"guided"``: reliability-guided path following (Herraez et al. 2002) without a graph cut, the channels of a
+  colour image on one shared tree, so that a step that is steep in one channel is avoided in all
+  (:mod:`torch_modulo.singleshot.pathfollow`); about five times faster than ``"learned"`` on the CPU. Under strong
+  noise in the low bits pass ``denoise=0.7`` (or use ``"fast"``).
 - ``"fast"``: the paper's energy (Eqs. 3-5, :mod:`torch_modulo.singleshot.energy`) and binary graph-cut moves
   (:mod:`torch_modulo.singleshot.graphcut`) on a cheaper schedule: start from path following when the wrapped
   image is smooth (no residues), else from ``k = 0``; global moves until one gains less than ``rel_tol`` of the
   energy; then local moves in tiles.
-- ``"learned"``: a small network predicts the rollover jump of every neighbour pair, an exact integer decoder
-  (most likely spanning tree, optionally min-cut moves) turns it into ``k`` (:mod:`torch_modulo.singleshot.learned`).
 - ``"paper"``: the paper's algorithm as published: from ``k = 0``, moves ``k <- k + delta`` while the energy
   drops, then step ``sigma``; non-representable pair terms lose their pairwise edge (PUMA).
 - ``"lsq"``: least-squares integration of the wrapped differences with the DCT (Ghiglia and Romero 1994), a few
@@ -21,8 +23,8 @@ the methods of :data:`METHODS`:
 
 Methods are entries of :data:`torch_modulo.singleshot.methods.REGISTRY` (solver, options, whether the channels of
 an image are solved together). The images and channels of a batch are solved in worker processes
-(:mod:`torch_modulo.singleshot.workers`), except by the methods with a tensor solver (``"lsq"``), which solve the
-batch on its device. docs/singleshot.md has the measurements.
+(:mod:`torch_modulo.singleshot.workers`), except by the methods with a tensor solver (``"lsq"``, ``"learned"``),
+which solve the batch on its device. docs/singleshot.md has the measurements.
 
 Unwrapping fixes ``k`` up to one constant per image and channel; the output puts the darkest large connected
 region at ``k = 0`` and no pixel below it (``k >= 0``, :mod:`torch_modulo.singleshot.anchor`).
@@ -96,7 +98,7 @@ class SingleShotInfo:
     cuts: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.int64))
     energy: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.float64))
     seconds: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.float64))
-    method: str = "guided"
+    method: str = "learned"
 
 
 def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tuple[torch.Tensor, SingleShotInfo]:
@@ -169,7 +171,7 @@ def unwrap_single(
     modulus: torch.Tensor,
     bits: int = 8,
     *,
-    method: str = "guided",
+    method: str = "learned",
     neighborhood: int = 8,
     a1: float = 0.1,
     a2: float = 1e-5,
@@ -184,22 +186,24 @@ def unwrap_single(
     """Recover the counts from one modulus image (paper Sec. 4, Eqs. 3-5).
 
     ``"paper"`` and ``"fast"`` minimise ``C(k) = sum V(I_i - I_j)`` over neighbour pairs of ``I = I_m + k 2**bits``
-    with binary moves ``k <- k + delta`` (one s-t minimum cut each, PyMaxflow); ``"guided"`` (default) follows the
-    most reliable paths instead. Then ``k`` is anchored: the darkest connected region holding at least 3% of
-    the pixels (or 0.1% with mostly smooth borders) gets ``k = 0`` and nothing is left below it (``k >= 0``).
-    Images are independent problems, and so are channels for the graph-cut methods; they are solved in parallel
-    worker processes. The energy settings (``neighborhood``, ``a1``, ``a2``, ``x0``) and ``sigma``, ``max_iter``
-    steer the graph-cut methods; for ``"guided"`` they only define the energy it reports.
+    with binary moves ``k <- k + delta`` (one s-t minimum cut each, PyMaxflow); ``"learned"`` (default) follows the
+    pairs a trained network is surest of, ``"guided"`` the most reliable paths by second differences. Then ``k``
+    is anchored: the darkest connected region holding at least 3% of the pixels (or 0.1% with mostly smooth
+    borders) gets ``k = 0`` and nothing is left below it (``k >= 0``). Images are independent problems, and so are
+    channels for the graph-cut methods; they are solved in parallel worker processes. The energy settings
+    (``neighborhood``, ``a1``, ``a2``, ``x0``) and ``sigma``, ``max_iter`` steer the graph-cut methods; for
+    ``"learned"`` and ``"guided"`` they only define the energy reported.
 
     Args:
         modulus: integer-valued floating tensor in ``[0, 2**bits)``, shape (B, C, H, W), (C, H, W) or (H, W),
             on any device.
         bits: sensor bit depth ``N``.
-        method: one of :data:`METHODS`: ``"guided"`` (default: path following without a graph cut, the channels
-            of an image together), ``"fast"`` (the paper's energy and moves on a cheaper schedule) or
-            ``"paper"`` (the published algorithm as printed, from ``k = 0``); ``"learned"`` (a small network's
-            jump probabilities per neighbour pair, decoded exactly: :mod:`torch_modulo.singleshot.learned`);
-            ``"lsq"`` (least squares with the DCT and reweighting, in torch on ``modulus``'s device).
+        method: one of :data:`METHODS`: ``"learned"`` (default: a small network's jump probabilities per
+            neighbour pair, the channels of an image together, decoded exactly:
+            :mod:`torch_modulo.singleshot.learned`), ``"guided"`` (path following without a graph cut, the channels
+            of an image together), ``"fast"`` (the paper's energy and moves on a cheaper schedule) or ``"paper"``
+            (the published algorithm as printed, from ``k = 0``); ``"lsq"`` (least squares with the DCT and
+            reweighting, in torch on ``modulus``'s device).
         neighborhood: 8 (the paper) or 4.
         a1: slope of the linear part of ``V`` (Eq. 5).
         a2: curvature of the quadratic part of ``V``.
@@ -262,7 +266,7 @@ class SingleShotUnwrap(nn.Module):
 
     Args:
         bits: sensor bit depth ``N``.
-        method: one of :data:`METHODS` (see :func:`unwrap_single`); ``"guided"`` by default.
+        method: one of :data:`METHODS` (see :func:`unwrap_single`); ``"learned"`` by default.
         neighborhood: 8 (the paper) or 4.
         a1: slope of the linear part of ``V``.
         a2: curvature of the quadratic part of ``V``.
@@ -287,7 +291,7 @@ class SingleShotUnwrap(nn.Module):
         self,
         bits: int = 8,
         *,
-        method: str = "guided",
+        method: str = "learned",
         neighborhood: int = 8,
         a1: float = 0.1,
         a2: float = 1e-5,

@@ -497,6 +497,8 @@ def learned_k(
     device = next(net.parameters()).device
     x = torch.as_tensor(moduli).to(device=device, dtype=torch.int64)
     planes = x.cpu().numpy()
+    if planes.shape[0] == 0:  # no channels: nothing to predict
+        return np.zeros(planes.shape, dtype=np.int64), np.ones(planes.shape)
     if max_cuts:
         logp = predict_edges(net, x, bits, augment, tile).cpu().numpy()
         out = [decode_edges(m, lp, bits, net.max_jump) for m, lp in zip(planes, logp, strict=True)]

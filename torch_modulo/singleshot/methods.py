@@ -216,6 +216,12 @@ def _check_nonnegative(value: object, name: str) -> float:
 #: The methods by name; :data:`METHODS` and every option check derive from it.
 REGISTRY: Mapping[str, Method] = MappingProxyType(
     {
+        "learned": Method(
+            solve=solve_learned,
+            solve_tensor=solve_learned_tensor,
+            options={name: Option(default, check) for name, (default, check) in LEARNED_OPTIONS.items()},
+            joint_channels=True,
+        ),
         "guided": Method(
             solve=_solve_guided,
             options={
@@ -239,12 +245,6 @@ REGISTRY: Mapping[str, Method] = MappingProxyType(
             solve=solve_lsq,
             options={name: Option(default, check) for name, (default, check) in LSQ_OPTIONS.items()},
             solve_tensor=solve_lsq_tensor,
-        ),
-        "learned": Method(
-            solve=solve_learned,
-            solve_tensor=solve_learned_tensor,
-            options={name: Option(default, check) for name, (default, check) in LEARNED_OPTIONS.items()},
-            joint_channels=True,
         ),
     }
 )
