@@ -2,7 +2,7 @@
 
 Implements Zhao, Shi, Fernandez-Cull, Yeung and Raskar, "Unbounded High Dynamic Range Photography using a
 Modulo Camera" (ICCP 2015): capture models (Eq. 1), multi-exposure unwrapping (Eqs. 6-7), single-shot
-unwrapping (Eqs. 3-5: the graph cut, and reliability-guided path following by default), tone mapping, sensor
+unwrapping (Eqs. 3-5: the graph cut, path following, and a small trained network by default), tone mapping, sensor
 adapters, data pipelines and a command line.
 """
 
