@@ -349,9 +349,9 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
         >>> k.tolist(), confidence.round(2).tolist()
         ([[0, 1, 1]], [[1.0, 0.61, 0.61]])
     """
-    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.sparse.csgraph import connected_components
 
-    from torch_modulo.singleshot.pathfollow import _pair_graph
+    from torch_modulo.singleshot.pathfollow import _pair_graph, _tree_parents
 
     m = np.asarray(modulus, dtype=np.int64)
     h, w = m.shape
@@ -368,11 +368,8 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
     del confident
     root = int(np.argmax(labels == np.bincount(labels).argmax()))
     del labels
-    tree = minimum_spanning_tree(graph, overwrite=True)
+    parent = _tree_parents(graph, root).astype(np.int64)
     del graph
-    _, parent = breadth_first_order(tree, root, directed=False, return_predecessors=True)
-    del tree
-    parent = np.where(parent < 0, np.arange(n, dtype=parent.dtype), parent).astype(np.int64)
     # Every pixel's step to its parent, k_child - k_parent, and the cost of the pair between them, by chunks.
     flat_m, flat_jump, flat_cost = m.ravel(), np.asarray(jump).reshape(2, n), cost.reshape(2, n)
     period, half = 1 << bits, 1 << (bits - 1)

@@ -209,15 +209,15 @@ def _reliability_graph(difficulty: np.ndarray, tile_pixels: int = 0) -> csr_matr
     return _pair_graph(right, down)
 
 
-def _tree_parents(graph: csr_matrix) -> np.ndarray:
-    """int32 parent of every pixel in the minimum spanning tree of ``graph`` (Kruskal), rooted at pixel 0.
+def _tree_parents(graph: csr_matrix, root: int = 0) -> np.ndarray:
+    """int32 parent of every pixel in the minimum spanning tree of ``graph`` (Kruskal), rooted at ``root``.
 
     The root, and pixels no pair reaches, are their own parents. ``graph`` is overwritten.
     """
     from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
     tree = minimum_spanning_tree(graph, overwrite=True)
-    _, parent = breadth_first_order(tree, 0, directed=False, return_predecessors=True)
+    _, parent = breadth_first_order(tree, root, directed=False, return_predecessors=True)
     del tree
     orphans = np.flatnonzero(parent < 0)
     parent[orphans] = orphans
