@@ -5,7 +5,8 @@ pixels whose aligned rollover count is wrong, and two confidence maps of that re
 (the weakest pair on the tree path, from the network's probabilities) and ``tm.unwrap_confidence`` (bottleneck
 steps of the restored image). Reported over the scene-protocol pairs with at least one error: the mean ROC AUC
 (probability that a wrong pixel is less confident than a right one) and the mean share of the errors among the
-10% least confident pixels; the same over the pairs under 10% wrong.
+10% least confident pixels (``single_limits.rank_scores``, as for ``unwrap_confidence`` there); the same over the
+pairs under 10% wrong.
 
     python -m research.learned_confidence --split train
 """
@@ -18,13 +19,8 @@ import numpy as np
 import torch
 
 import torch_modulo as tm
-from research.single_limits import auc
+from research.single_limits import rank_scores
 from torch_modulo import protocols
-
-
-def share_in_least_confident(confidence: np.ndarray, wrong: np.ndarray, share: float = 0.1) -> float:
-    """The share of the wrong pixels among the ``share`` least confident ones."""
-    return float(wrong[confidence <= np.quantile(confidence, share)].sum() / wrong.sum())
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -43,17 +39,9 @@ def main(argv: list[str] | None = None) -> None:
             wrong = (torch.floor(aligned / 256) != torch.floor(truth / 256)).numpy().ravel()
             if not wrong.any():
                 continue
-            learned = tm.learned_confidence(modulus, 8).numpy().ravel()
-            steps = tm.unwrap_confidence(restored, 8).numpy().ravel()
-            rows.append(
-                [
-                    auc(1 - learned, wrong),
-                    auc(1 - steps, wrong),
-                    share_in_least_confident(learned, wrong),
-                    share_in_least_confident(steps, wrong),
-                    wrong.mean(),
-                ]
-            )
+            auc_learned, caught_learned = rank_scores(tm.learned_confidence(modulus, 8).numpy().ravel(), wrong)
+            auc_steps, caught_steps = rank_scores(tm.unwrap_confidence(restored, 8).numpy().ravel(), wrong)
+            rows.append([auc_learned, auc_steps, caught_learned, caught_steps, wrong.mean()])
     a = np.array(rows)
     for name, part in (("all", a), ("under 10% wrong", a[a[:, 4] < 0.1])):
         m = np.nanmean(part[:, :4], axis=0)

@@ -115,15 +115,20 @@ def auc(score: np.ndarray, positive: np.ndarray) -> float:
     return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 
 
+def rank_scores(confidence: np.ndarray, wrong: np.ndarray) -> tuple[float, float]:
+    """AUC of 1 - confidence for the wrong pixels, and the share of them among the 10% least confident pixels."""
+    order = np.argsort(confidence, kind="stable")
+    low = order[: max(1, int(0.1 * confidence.size))]
+    caught = float(wrong[low].sum() / wrong.sum()) if wrong.any() else float("nan")
+    return auc(-confidence, wrong), caught
+
+
 def confidence_scores(restored: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
     """AUC of 1 - confidence for wrong k, share of wrong pixels among the 10% least confident, share wrong."""
     conf = unwrap_confidence(torch.from_numpy(restored), BITS).numpy().ravel()
     shifted = aligned(restored, truth)
     wrong = (np.floor(shifted / PERIOD) != np.floor(truth / PERIOD)).ravel()
-    order = np.argsort(conf, kind="stable")
-    low = order[: max(1, int(0.1 * conf.size))]
-    caught = float(wrong[low].sum() / wrong.sum()) if wrong.any() else float("nan")
-    return auc(-conf, wrong), caught, float(wrong.mean())
+    return (*rank_scores(conf, wrong), float(wrong.mean()))
 
 
 def _at_true_level(k: np.ndarray, k_true: np.ndarray) -> bool:
