@@ -21,7 +21,8 @@ colour image against the RGB truth: the restored RGB for ``rgb``, and for the mo
 demosaiced (:func:`torch_modulo.demosaic`, ``--demosaic``). ``truth`` demosaics the true mosaic with every method of
 :data:`torch_modulo.cfa.DEMOSAIC_METHODS`: the loss of demosaicing alone.
 
-Summary: means over scenes, scenes recovered perfectly, and the gaps in exact-k between ``rgb`` and ``mosaic`` (and
+Summary, for all scenes and for the training and the validation scenes apart (``--split`` runs one side only):
+means over scenes, scenes recovered perfectly, and the gaps in exact-k between ``rgb`` and ``mosaic`` (and
 ``planes``), and between ``rgb@sites`` and ``mosaic`` (the same photosites, scored alike).
 A JSON line with the summary ends the output.
 
@@ -52,17 +53,19 @@ BITS = 8
 PERIOD = 2**BITS
 PEAK = protocols.PROTOCOL_PEAKS["B"]
 WAYS = ("rgb", "rgb@sites", "mosaic", "planes", "grey")
+#: Summary groups: every scene, and each side of the split.
+GROUPS = ("all", "train", "validation")
 
 
-def select_scenes(data: Path, names: list[str] | None, max_scenes: int) -> list[Path]:
-    """The scenes under ``data`` (those named, paths relative to ``data``, else all); exits if none."""
-    scenes = [data / n for n in names] if names else protocols.list_scenes(data)
+def select_scenes(data: Path, names: list[str] | None, split: str, max_scenes: int) -> list[Path]:
+    """The scenes under ``data``: those named (paths relative to ``data``), else the ``split``; exits if none."""
+    scenes = [data / n for n in names] if names else protocols.list_scenes(data, split)
     missing = [str(p) for p in scenes if not p.is_file()]
     if missing:
         raise SystemExit(f"scenes not found: {', '.join(missing)}")
     scenes = scenes[:max_scenes] if max_scenes else scenes
     if not scenes:
-        raise SystemExit(f"no .exr/.hdr scenes under {data}")
+        raise SystemExit(f"no .exr/.hdr scenes under {data} (split {split!r})")
     return scenes
 
 
@@ -94,7 +97,11 @@ def run_scene(path: Path, args: argparse.Namespace) -> dict[str, Any]:
     h, w = image.shape[-2:]
     truth_rgb = protocols.protocol_b(image[:, : h - h % 2, : w - w % 2].contiguous())
     truth = tm.mosaic(truth_rgb, args.cfa)
-    row: dict[str, Any] = {"scene": path.relative_to(args.data).as_posix(), "shape": list(truth_rgb.shape)}
+    row: dict[str, Any] = {
+        "scene": path.relative_to(args.data).as_posix(),
+        "split": protocols.scene_split(path, args.data),
+        "shape": list(truth_rgb.shape),
+    }
 
     restored_rgb, seconds = unwrap(torch.remainder(truth_rgb, PERIOD), args)
     score = protocols.score_scene(restored_rgb, truth_rgb, BITS, PEAK)
@@ -150,8 +157,8 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def print_summary(summary: dict[str, Any]) -> None:
-    print(f"\nmeans over {summary['scenes']} scenes:")
+def print_summary(group: str, summary: dict[str, Any]) -> None:
+    print(f"\nmeans over {summary['scenes']} scenes ({group}):")
     for way in WAYS:
         e = summary[way]
         rgb_db = "" if math.isnan(e["mean_psnr_rgb_db"]) else f", colour PSNR {e['mean_psnr_rgb_db']:.2f} dB"
@@ -174,6 +181,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=protocols.DEV_SCENES, help="scenes folder (default: %(default)s)")
     ap.add_argument("--scenes", nargs="+", default=None, help="only these scenes (paths relative to --data)")
+    ap.add_argument("--split", default="all", choices=protocols.SPLITS, help="only one side of the split")
     ap.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0: all)")
     ap.add_argument("--scale", type=int, default=512, help="longest side after downsampling")
     ap.add_argument("--cfa", default="RGGB", choices=CFA_PATTERNS)
@@ -189,17 +197,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)
-    scenes = select_scenes(args.data, args.scenes, args.max_scenes)
+    scenes = select_scenes(args.data, args.scenes, args.split, args.max_scenes)
     print(f"protocol B mosaicked {args.cfa}: {len(scenes)} scenes, longest side {args.scale}, method {args.method}")
     print(header(), flush=True)
     rows = []
     for path in scenes:
         rows.append(run_scene(path, args))
         print(scene_line(rows[-1]), flush=True)
-    summary = summarize(rows)
-    print_summary(summary)
-    print(json.dumps({"cfa": args.cfa, "method": args.method, "demosaic": args.demosaic, "summary": summary}))
-    return summary
+    groups = {}
+    for group in GROUPS:
+        chosen = [r for r in rows if group == "all" or r["split"] == group]
+        if chosen:
+            groups[group] = summarize(chosen)
+            print_summary(group, groups[group])
+    print(json.dumps({"cfa": args.cfa, "method": args.method, "demosaic": args.demosaic, "summary": groups}))
+    return groups
 
 
 if __name__ == "__main__":
