@@ -7,7 +7,9 @@ One command, seeded:
 Training pairs are built on the fly: a random crop of a radiance map (random scale, flips and quarter turns), seen
 as luminance or RGB, scaled so that its brightest region rolls over 2 to 20 times, captured with the library's own
 sensor (``capture_intensity`` at a high bit depth, clipped at the chosen peak, then ``modulo_wrap`` to 8 bits;
-optionally with shot and read noise). Radiance maps come ONLY from the CC0/BSD scenes
+optionally with shot and read noise). With ``--mosaic``, a share of the samples is seen as a Bayer mosaic would be
+by ``unwrap_single(..., cfa=...)``: mosaicked, wrapped and interpolated on the circle (:func:`mosaic_pair`).
+Radiance maps come ONLY from the CC0/BSD scenes
 (``protocols.list_scenes(DEV_SCENES, split="train")``: polyhaven-cc0 and openexr-images) and from procedural
 scenes (:mod:`procedural`): the validation scenes are never read here.
 
@@ -36,6 +38,7 @@ from procedural import procedural_scene  # noqa: E402
 
 from torch_modulo import protocols  # noqa: E402
 from torch_modulo.capture import capture_intensity, modulo_wrap  # noqa: E402
+from torch_modulo.cfa import CFA_PATTERNS, demosaic, interpolate_wrapped, mosaic  # noqa: E402
 from torch_modulo.singleshot.learned import EdgeJumpNet, edge_features, edge_loss, edge_targets  # noqa: E402
 from torch_modulo.tonemap import luminance  # noqa: E402
 
@@ -98,22 +101,47 @@ def capture_pair(radiance: torch.Tensor, rng: np.random.Generator, noise: float)
     return counts.clamp_max(math.floor(peak))
 
 
+def mosaic_pair(counts: torch.Tensor, cfa: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """What ``unwrap_single(..., cfa=cfa)`` sees of (3, H, W) true counts, and the counts it should restore.
+
+    The counts are mosaicked and wrapped, then interpolated on the circle (``interpolate_wrapped``): that guide is
+    the network's input. Its target agrees with the true counts at the photosites; elsewhere it is the bilinear
+    interpolation of the true photosite counts, moved by whole periods to be congruent with the guide.
+    """
+    sites = mosaic(counts, cfa)
+    guide = interpolate_wrapped(modulo_wrap(sites, BITS), cfa, BITS)
+    smooth = demosaic(sites, cfa, "bilinear")
+    return guide, guide + PERIOD * torch.round((smooth - guide) / PERIOD)
+
+
 def make_batch(
     scenes: list[torch.Tensor], batch: int, size: int, rng: np.random.Generator, args: argparse.Namespace
-) -> torch.Tensor:
-    """(batch, 3, size, size) true counts; grey samples are repeated into the three channels."""
-    out = []
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(batch, 3, size, size) wrapped inputs and the true counts they come from.
+
+    Grey samples are repeated into the three channels. A share ``args.mosaic`` of the samples is mosaicked with a
+    random Bayer pattern first (:func:`mosaic_pair`).
+    """
+    wrapped, truth = [], []
     for _ in range(batch):
         if rng.random() < args.procedural:
             radiance = procedural_scene(size, rng)
         else:
             radiance = random_crop(scenes, size, rng)
-        counts = capture_pair(radiance, rng, args.noise)
-        out.append(counts.expand(3, -1, -1) if counts.shape[0] == 1 else counts)
-    return torch.stack(out).float()
+        counts = capture_pair(radiance, rng, args.noise).double()
+        counts = counts.expand(3, -1, -1) if counts.shape[0] == 1 else counts
+        if rng.random() < args.mosaic:
+            guide, counts = mosaic_pair(counts, str(rng.choice(CFA_PATTERNS)))
+        else:
+            guide = modulo_wrap(counts, BITS)
+        wrapped.append(guide)
+        truth.append(counts)
+    return torch.stack(wrapped).float(), torch.stack(truth).float()
 
 
 def train(args: argparse.Namespace) -> dict[str, object]:
+    if args.mosaic > 0 and args.crop % 2:
+        raise SystemExit(f"--mosaic needs an even --crop (whole 2 x 2 cells); got {args.crop}")
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
@@ -148,9 +176,9 @@ def train(args: argparse.Namespace) -> dict[str, object]:
         lr = args.lr * 0.5 * (1 + math.cos(math.pi * min(step / total, 1.0)))
         for group in opt.param_groups:
             group["lr"] = lr
-        counts = make_batch(scenes, args.batch, args.crop, rng, args)
+        wrapped, counts = make_batch(scenes, args.batch, args.crop, rng, args)
         target, hard = edge_targets(counts, BITS, args.max_jump)
-        logits = net(edge_features(modulo_wrap(counts, BITS), BITS))
+        logits = net(edge_features(wrapped, BITS))
         loss = edge_loss(logits, target, args.hard_weight)
         opt.zero_grad()
         loss.backward()
@@ -201,6 +229,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--hard-weight", type=float, default=5.0)
     ap.add_argument("--procedural", type=float, default=0.3, help="share of procedural crops")
     ap.add_argument("--noise", type=float, default=0.15, help="share of crops with sensor noise")
+    ap.add_argument("--mosaic", type=float, default=0.0, help="share of crops seen as Bayer mosaics")
     ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
