@@ -3,13 +3,18 @@ exact consistency with the modulus, the decoders, and a tiny training run."""
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
 from torch_modulo.capture import modulo_wrap
+from torch_modulo.cfa import interpolate_wrapped, mosaic
 from torch_modulo.singleshot import unwrap_single
 from torch_modulo.singleshot.learned import (
+    MOSAIC_CUTS,
     EdgeJumpNet,
     _unflip,
     decode_edges,
@@ -20,11 +25,16 @@ from torch_modulo.singleshot.learned import (
     learned_confidence,
     learned_k,
     load_model,
+    mosaic_spec,
     predict_edges,
     predict_jumps,
+    refine_band,
     refine_cut,
     tile_margin,
 )
+from torch_modulo.singleshot.methods import make_spec
+
+TRAIN_SCRIPT = Path(__file__).resolve().parents[2] / "references" / "learned_single" / "train.py"
 
 
 @pytest.fixture(autouse=True)
@@ -44,6 +54,11 @@ def scene(size: int = 48, seed: int = 0) -> np.ndarray:
     lamp = (np.abs(y - 0.7 * size) < size / 8) & (np.abs(x - 0.7 * size) < size / 8)
     img = img + 1500 * lamp + rng.uniform(0, 3, img.shape)
     return np.floor(img)
+
+
+def spec(method: str, **options: object):
+    """unwrap_single's settings for ``method`` with its defaults and these options."""
+    return make_spec(8, method, 8, 0.1, 1e-5, None, 2, 1000, options)
 
 
 def oracle_logp(counts: np.ndarray, max_jump: int = 15) -> np.ndarray:
@@ -130,6 +145,41 @@ class TestDecoders:
         fixed = refine_cut(m, k, oracle_logp(truth), 8, max_cuts=4)
         assert np.array_equal(fixed - fixed[0, 0], k_true - k_true[0, 0])
 
+    @pytest.mark.parametrize("block", [1, 3, 8])
+    def test_superpixels_of_any_size_undo_a_wrong_region(self, block: int) -> None:
+        truth = scene(32)
+        m = (truth % 256).astype(np.int64)
+        k_true = (truth.astype(np.int64) - m) // 256
+        k = k_true.copy()
+        k[5:19, 7:23] += 1  # not aligned with the blocks
+        table = -oracle_logp(truth)
+        first = np.full((2, 32, 32), -15)
+        fixed = refine_band(m, k, table, first, 8, max_cuts=4, block=block)
+        assert np.array_equal(fixed - fixed[0, 0], k_true - k_true[0, 0])
+
+    def test_band_holds_the_jumps_around_the_best(self) -> None:
+        net = EdgeJumpNet(width=4, max_jump=3, dilations=(1,))
+        m = torch.from_numpy(np.stack([scene(20, s) for s in range(3)]) % 256)
+        logp = predict_edges(net, m, 8).numpy()
+        jump, cost = predict_jumps(net, m, 8, band=2)
+        assert cost.shape == (3, 2, 5, 20, 20) and np.array_equal(jump, predict_jumps(net, m, 8)[0])
+        for d in range(-2, 3):
+            index = jump.astype(np.int64) + 3 + d
+            inside = (index >= 0) & (index <= 6)
+            expect = -np.take_along_axis(logp, np.clip(index, 0, 6)[:, :, None], 2)[:, :, 0]
+            np.testing.assert_allclose(cost[:, :, d + 2][inside], expect[inside].clip(0, 30), atol=1e-5)
+            assert bool((cost[:, :, d + 2][~inside] == 30).all())
+
+    def test_mosaics_run_cuts_by_default(self) -> None:
+        learned, guided, chosen = spec("learned"), spec("guided"), spec("learned", max_cuts=0)
+        assert dict(mosaic_spec(learned).options)["max_cuts"] == MOSAIC_CUTS
+        assert mosaic_spec(chosen) == chosen and mosaic_spec(guided) == guided
+        rgb = torch.from_numpy(np.stack([scene(16, s) for s in range(3)])).float()
+        m = mosaic(rgb, "GRBG") % 256
+        out = unwrap_single(m, cfa="GRBG")
+        assert torch.equal(out, unwrap_single(m, cfa="GRBG", max_cuts=MOSAIC_CUTS))
+        assert torch.equal(torch.remainder(out, 256), m)
+
     def test_learned_k_grey_and_colour(self) -> None:
         truth = np.stack([scene(24, s) for s in range(3)])
         k, confidence = learned_k((truth % 256).astype(np.int64), 8)
@@ -183,6 +233,22 @@ class TestTraining:
             opt.step()
             losses.append(float(loss.detach()))
         assert losses[-1] < 0.6 * losses[0]
+
+    def test_mosaic_pairs(self) -> None:
+        """The training recipe's mosaic samples: the guide unwrap_single sees, a target congruent with it that keeps
+        the true photosite counts, and is the true counts where the colours are linear ramps."""
+        spec = importlib.util.spec_from_file_location("train_learned", TRAIN_SCRIPT)
+        train = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(train)
+        counts = torch.from_numpy(np.stack([scene(24, s) for s in range(3)])).double()
+        guide, target = train.mosaic_pair(counts, "BGGR")
+        assert torch.equal(guide, interpolate_wrapped(mosaic(counts, "BGGR") % 256, "BGGR"))
+        assert torch.equal(torch.remainder(target, 256), guide)
+        assert torch.equal(mosaic(target, "BGGR"), mosaic(counts, "BGGR"))
+        y, x = torch.meshgrid(torch.arange(24.0), torch.arange(24.0), indexing="ij")
+        smooth = torch.stack([300 + 40 * x, 100 + 30 * (x + y), 500 + 25 * y])
+        inner = np.s_[:, 1:-1, 1:-1]  # the borders are mirrored, not extrapolated
+        assert torch.equal(train.mosaic_pair(smooth, "RGGB")[1][inner], smooth[inner])
 
 
 class TestTiles:

@@ -54,7 +54,7 @@ from torch_modulo._checks import (
 from torch_modulo.cfa import check_cfa, interpolate_wrapped, mosaic
 from torch_modulo.singleshot.confidence import UnwrapConfidence, unwrap_confidence
 from torch_modulo.singleshot.energy import Potential, UnwrapEnergy, is_representable, potential, unwrap_energy
-from torch_modulo.singleshot.learned import learned_confidence
+from torch_modulo.singleshot.learned import learned_confidence, mosaic_spec
 from torch_modulo.singleshot.methods import METHODS, REGISTRY, SolverSpec, make_spec, solve_on_device
 from torch_modulo.singleshot.workers import check_workers, run_planes, shutdown_workers
 
@@ -163,7 +163,7 @@ def _solve_mosaic(
             f"modulus must be a mosaic with cfa={cfa!r}, (B, 1, H, W), (1, H, W) or (H, W); got {tuple(modulus.shape)}"
         )
     guide = interpolate_wrapped(modulus if modulus.dim() > 2 else modulus[None], cfa, spec.params.bits)
-    out, info = _solve(guide, spec, workers)
+    out, info = _solve(guide, mosaic_spec(spec), workers)
     return mosaic(out, cfa).reshape(modulus.shape), info
 
 
@@ -220,6 +220,8 @@ def unwrap_single(
             are interpolated on the circle to full resolution (:func:`torch_modulo.cfa.interpolate_wrapped`), that
             RGB image is unwrapped (the methods that solve channels together share one tree across the colours),
             and the restored mosaic keeps each photosite's own count; the info has one entry per colour (C = 3).
+            ``"learned"`` then runs 4 min-cut moves after its tree unless ``max_cuts`` is given
+            (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`).
             Demosaic the restored counts (:func:`torch_modulo.cfa.demosaic`), never the modulus.
         **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
             ``"auto"``), ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase),
@@ -231,8 +233,9 @@ def unwrap_single(
             ``2**22``: larger images build their spanning tree in blocks of at most that many pixels, which needs
             less memory and gives a minimum spanning tree of the same pairs; 0: the whole image at once).
             ``"learned"``: ``weights``
-            (default None: the weights shipped in the package; or a weights file), ``max_cuts`` (default 0: the
-            most likely tree alone; more: binary moves weighing every pair's probability after it), ``augment``
+            (default None: the weights shipped in the package; or a weights file), ``max_cuts`` (default 0, 4 on a
+            mosaic: the most likely tree alone; more: binary moves weighing every pair's probability after it),
+            ``augment``
             (default False: True averages the network over the image's four flips), ``tile`` (default 768: the
             network predicts tiles of that side with their context, which bounds memory; 0: the whole image). ``"lsq"``:
             ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),

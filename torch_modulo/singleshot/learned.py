@@ -21,6 +21,7 @@ whose wrapped step is wrong); the recipe that made the shipped weights is ``refe
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from collections.abc import Callable, Iterator
@@ -34,10 +35,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from torch_modulo._checks import check_flag, check_int
-from torch_modulo.singleshot.grid import path_to_root
+from torch_modulo.singleshot.grid import components, path_to_root
 
 __all__ = [
+    "BAND",
     "LEARNED_OPTIONS",
+    "MOSAIC_CUTS",
     "TILE",
     "WEIGHTS",
     "EdgeJumpNet",
@@ -50,8 +53,10 @@ __all__ = [
     "learned_confidence",
     "learned_k",
     "load_model",
+    "mosaic_spec",
     "predict_edges",
     "predict_jumps",
+    "refine_band",
     "refine_cut",
     "solve_learned",
     "tile_margin",
@@ -182,6 +187,17 @@ def _unflip(logp: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
 #: side, so memory is bounded.
 TILE = 768
 
+#: Cost of a jump outside ``-J .. J`` (and the most any jump costs): ``-log`` of a negligible probability.
+_MAX_COST = 30.0
+
+#: The default ``max_cuts`` of a mosaic's guide (``unwrap_single(..., cfa=...)``, :func:`mosaic_spec`): its
+#: interpolated values mislead the tree more often than a full colour image does, and the cuts outvote them.
+MOSAIC_CUTS = 4
+
+#: With ``max_cuts``, the costs of the jumps within ``BAND`` of each pair's most likely one are kept for the cuts
+#: (:func:`refine_band`; farther jumps cost :data:`_MAX_COST`): ``2 (2 BAND + 1)`` values per pixel and channel.
+BAND = 2
+
 #: A pair this likely (``p >= 0.99``) joins the reference region of :func:`decode_jumps`' confidence.
 _CONFIDENT = 0.99
 
@@ -275,27 +291,36 @@ def predict_edges(
 
 
 def predict_jumps(
-    net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool = False, tile: int = TILE
+    net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool = False, tile: int = TILE, band: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """The most likely jump of every pair and its cost ``-log p``: what the tree decoder needs, two values per pair.
 
     The network runs on the moduli's device, tile by tile (see :func:`predict_edges`); only the two values per pair
-    come back to the CPU, so memory grows with the tile, not with the image.
+    come back to the CPU, so memory grows with the tile, not with the image. With ``band``, the costs of the jumps
+    ``n - band .. n + band`` around the most likely ``n`` come back too (what :func:`refine_band` weighs).
 
     Returns:
-        ``(jump, cost)``: int16 (C, 2, H, W) jumps ``n`` in ``[-J, J]`` and float32 (C, 2, H, W) costs ``>= 0``
-        (direction 0: to the right neighbour, 1: to the one below).
+        ``(jump, cost)``: int16 (C, 2, H, W) jumps ``n`` in ``[-J, J]`` (direction 0: to the right neighbour, 1: to
+        the one below) and float32 costs ``>= 0``, (C, 2, H, W), or with ``band`` (C, 2, 2 band + 1, H, W) with the
+        most likely jump's at index ``band`` (jumps beyond ``+-J`` cost ``30``).
     """
     c, h, w = moduli.shape
     if c not in (1, SLOTS):
-        parts = [predict_jumps(net, moduli[i : i + 1], bits, augment, tile) for i in range(c)]
+        parts = [predict_jumps(net, moduli[i : i + 1], bits, augment, tile, band) for i in range(c)]
         return np.concatenate([j for j, _ in parts]), np.concatenate([k for _, k in parts])
     jump = np.empty((c, 2, h, w), dtype=np.int16)
-    cost = np.empty((c, 2, h, w), dtype=np.float32)
+    cost = np.empty((c, 2, *((2 * band + 1,) if band else ()), h, w), dtype=np.float32)
+    offsets = torch.arange(-band, band + 1, device=moduli.device).view(1, 1, -1, 1, 1)
     for (ys, xs), logp in _windows(net, moduli, bits, augment, tile):
         best, index = logp.max(dim=2)
         jump[:, :, ys, xs] = index.cpu().numpy() - net.max_jump
-        cost[:, :, ys, xs] = (-best).clamp_min(0.0).cpu().numpy()
+        if band:
+            around = index.unsqueeze(2) + offsets
+            inside = (around >= 0) & (around < logp.shape[2])
+            near = torch.gather(logp, 2, around.clamp(0, logp.shape[2] - 1))
+            cost[:, :, :, ys, xs] = torch.where(inside, -near, _MAX_COST).clamp(0.0, _MAX_COST).cpu().numpy()
+        else:
+            cost[:, :, ys, xs] = (-best).clamp_min(0.0).cpu().numpy()
     return jump, cost
 
 
@@ -393,40 +418,71 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
     return k.reshape(h, w), confidence.reshape(h, w)
 
 
-#: Cost of a jump outside ``-J .. J`` (and the most any jump costs): ``-log`` of a negligible probability.
-_MAX_COST = 30.0
-
-
-def _pair_costs(m: np.ndarray, k: np.ndarray, cost: np.ndarray, period: int, shift_a: int, shift_b: int) -> list:
-    """Per direction, the cost ``-log p`` of the jump every pair has when ``k`` moves by ``shift_a`` at its first end
-    and ``shift_b`` at its second."""
-    j = (cost.shape[1] - 1) // 2
+def _pair_costs(
+    m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, period: int, shift_a: int, shift_b: int
+) -> list:
+    """Per direction, the cost of the jump every pair has when ``k`` moves by ``shift_a`` at its first end and
+    ``shift_b`` at its second: ``table[d, n - first[d]]``, :data:`_MAX_COST` outside the table."""
+    size = table.shape[1]
     out = []
     for direction, (a, b) in enumerate(_DIRECTIONS):
         restored_a, restored_b = m[a] + period * (k[a] + shift_a), m[b] + period * (k[b] + shift_b)
         wd = np.mod(m[b] - m[a] + period // 2, period) - period // 2
-        n = (restored_b - restored_a - wd) // period + j
-        inside = (n >= 0) & (n <= 2 * j)
-        c = np.take_along_axis(cost[direction][(slice(None), *a)], np.clip(n, 0, 2 * j)[None], 0)[0]
+        n = (restored_b - restored_a - wd) // period - first[direction][a]
+        inside = (n >= 0) & (n < size)
+        c = np.take_along_axis(table[direction][(slice(None), *a)], np.clip(n, 0, size - 1)[None], 0)[0]
         out.append(np.where(inside, c, _MAX_COST))
     return out
 
 
 def refine_cut(modulus: np.ndarray, k: np.ndarray, logp: np.ndarray, bits: int, max_cuts: int = 6) -> np.ndarray:
+    """:func:`refine_band` with every jump's cost: from (2, 2J + 1, H, W) jump log-probabilities.
+
+    Example:
+        >>> m = np.array([[200, 10, 60]])
+        >>> logp = np.full((2, 3, 1, 3), -30.0); logp[:, 1] = 0.0  # sure that every wrapped step is right
+        >>> refine_cut(m, np.array([[0, 0, 1]]), logp, 8, max_cuts=2).tolist()
+        [[0, 1, 1]]
+    """
+    j = (logp.shape[1] - 1) // 2
+    first = np.full((2, *np.shape(modulus)), -j, dtype=np.int64)
+    return refine_band(modulus, k, -np.asarray(logp, dtype=np.float64), first, bits, max_cuts)
+
+
+#: :func:`refine_band` moves superpixels: pixels joined by pairs this sure (``-log p < 0.01``) inside blocks of
+#: ``_BLOCK x _BLOCK`` pixels move together.
+_SURE, _BLOCK = 0.01, 4
+
+
+def refine_band(
+    modulus: np.ndarray,
+    k: np.ndarray,
+    table: np.ndarray,
+    first: np.ndarray,
+    bits: int,
+    max_cuts: int = 6,
+    block: int = _BLOCK,
+) -> np.ndarray:
     """Lower ``sum over pairs of -log p(jump)`` over integer ``k`` by binary moves ``k <- k + delta x`` (min cuts).
 
-    Where :func:`decode_edges` trusts one tree, this weighs every pair, so a confident but wrong tree pair that
+    Where :func:`decode_jumps` trusts one tree, this weighs every pair, so a confident but wrong tree pair that
     shifts a whole region is outvoted by the region's other borders (loop consistency). Moves alternate
     ``delta = +1, -1``; a pair term that is not graph-representable for a move is dropped from its graph (as
     in PUMA) and a move is kept only if the exact cost drops. Stops after ``max_cuts`` cuts or two moves in a row
-    that do not help.
+    that do not help. The graph's nodes are superpixels, not pixels: the pixels of a ``block x block`` square
+    joined by pairs the network is sure of at the starting ``k`` (``-log p < 0.01``) move as one. A superpixel
+    still ends wherever the network is unsure, and the graph is tens of times smaller (``block=1``: pixels).
 
     Args:
         modulus: (H, W) integer-valued moduli.
-        k: int64 (H, W) starting rollover counts (e.g. from :func:`decode_edges`).
-        logp: (2, 2J + 1, H, W) jump log-probabilities.
+        k: int64 (H, W) starting rollover counts (e.g. from :func:`decode_jumps`).
+        table: (2, K, H, W) costs ``-log p`` of K consecutive jumps per pair (direction 0: to the right, 1: down):
+            ``table[d, i]`` is the cost of the jump ``first[d] + i``; jumps outside cost :data:`_MAX_COST`, and
+            costs are clipped to it.
+        first: (2, H, W) integers: the jump of ``table``'s first entry per pair.
         bits: the sensor bit depth ``N``.
         max_cuts: the most minimum cuts.
+        block: the side of the squares superpixels stay inside.
 
     Returns:
         int64 (H, W) rollover counts.
@@ -435,31 +491,45 @@ def refine_cut(modulus: np.ndarray, k: np.ndarray, logp: np.ndarray, bits: int, 
 
     m = np.asarray(modulus, dtype=np.int64)
     k = np.asarray(k, dtype=np.int64).copy()
+    first = np.asarray(first, dtype=np.int64)
     h, w = m.shape
     period = 1 << bits
-    cost = np.clip(-np.asarray(logp, dtype=np.float64), 0.0, _MAX_COST)
+    table = np.clip(np.asarray(table, dtype=np.float32), 0.0, _MAX_COST)
+
+    def costs(kk: np.ndarray, shift_a: int = 0, shift_b: int = 0) -> list:
+        return _pair_costs(m, kk, table, first, period, shift_a, shift_b)
+
+    same = costs(k)
     ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
-    energy = sum(float(c.sum()) for c in _pair_costs(m, k, cost, period, 0, 0))
+    rows, cols = np.arange(h)[:, None] // block, np.arange(w)[None, :] // block
+    square = rows * (-(-w // block)) + cols
+    joined = [(c < _SURE) & (square[a] == square[b]) for (a, b), c in zip(_DIRECTIONS, same, strict=True)]
+    n, labels = components(
+        h * w,
+        np.concatenate([ids[a][j] for (a, _), j in zip(_DIRECTIONS, joined, strict=True)]),
+        np.concatenate([ids[b][j] for (_, b), j in zip(_DIRECTIONS, joined, strict=True)]),
+    )
+    labels = labels.reshape(h, w)
+    # Pairs inside a superpixel keep their jump under every move: only the pairs between superpixels enter a graph.
+    ends = [(labels[a][x], labels[b][x], x) for (a, b) in _DIRECTIONS for x in [labels[a] != labels[b]]]
+    nodes = np.arange(n)
+    energy = sum(float(c.sum(dtype=np.float64)) for c in same)
     failures = 0
     for cut in range(max_cuts):
         delta = 1 if cut % 2 == 0 else -1
-        same = _pair_costs(m, k, cost, period, 0, 0)
-        second_moves = _pair_costs(m, k, cost, period, 0, delta)
-        first_moves = _pair_costs(m, k, cost, period, delta, 0)
-        graph = maxflow.Graph[float](h * w, 2 * h * w)
-        graph.add_nodes(h * w)
-        unary = np.zeros((h, w))
-        for (a, b), c_a, c_b, c_f in zip(_DIRECTIONS, same, second_moves, first_moves, strict=True):
-            unary[a] += c_f - c_a
-            unary[b] += c_a - c_f
+        same, second_moves, first_moves = costs(k), costs(k, 0, delta), costs(k, delta, 0)
+        graph = maxflow.Graph[float](n, sum(int(x.sum()) for _, _, x in ends))
+        graph.add_nodes(n)
+        unary = np.zeros(n)
+        for (ra, rb, x), c_a, c_b, c_f in zip(ends, same, second_moves, first_moves, strict=True):
+            c_a, c_b, c_f = c_a[x].astype(np.float64), c_b[x].astype(np.float64), c_f[x].astype(np.float64)
+            unary += np.bincount(ra, c_f - c_a, n) + np.bincount(rb, c_a - c_f, n)
             pair = np.maximum(c_b + c_f - 2 * c_a, 0.0)
-            graph.add_edges(ids[a].ravel(), ids[b].ravel(), pair.ravel(), np.zeros(pair.size))
-        u = unary.ravel()
-        graph.add_grid_tedges(ids.ravel(), np.maximum(u, 0.0), np.maximum(-u, 0.0))
+            graph.add_edges(ra, rb, pair, np.zeros(pair.size))
+        graph.add_grid_tedges(nodes, np.maximum(unary, 0.0), np.maximum(-unary, 0.0))
         graph.maxflow()
-        moved = graph.get_grid_segments(ids)
-        trial = k + delta * moved
-        new = sum(float(c.sum()) for c in _pair_costs(m, trial, cost, period, 0, 0))
+        trial = k + delta * graph.get_grid_segments(nodes)[labels]
+        new = sum(float(c.sum(dtype=np.float64)) for c in costs(trial))
         if new < energy - 1e-9 * max(1.0, energy):
             k, energy, failures = trial, new, 0
         else:
@@ -480,8 +550,9 @@ def learned_k(
     """``k`` and the confidence of one image's channels (C, H, W), up to one constant per channel.
 
     The network runs on its own device (the moduli are moved there), tile by tile; the decoding on the CPU. With
-    ``max_cuts``, the full log-probabilities are kept for :func:`refine_cut` (``2 (2J + 1)`` floats per pixel and
-    channel) and the confidence is that of the tree before the cuts.
+    ``max_cuts``, the costs of the jumps within :data:`BAND` of each pair's most likely one are kept for
+    :func:`refine_band` (``2 (2 BAND + 1)`` floats per pixel and channel) and the confidence is that of the tree
+    before the cuts.
 
     Example:
         >>> ramp = np.arange(0, 1200, 40).reshape(1, 1, -1).repeat(8, axis=1)
@@ -496,14 +567,15 @@ def learned_k(
     planes = x.cpu().numpy()
     if planes.shape[0] == 0:  # no channels: nothing to predict
         return np.zeros(planes.shape, dtype=np.int64), np.ones(planes.shape)
+    band = BAND if max_cuts else 0
+    jump, cost = predict_jumps(net, x, bits, augment, tile, band)
+    best = cost[:, :, band] if band else cost
+    out = [decode_jumps(m, j, c, bits) for m, j, c in zip(planes, jump, best, strict=True)]
+    k = np.stack([kk for kk, _ in out])
     if max_cuts:
-        logp = predict_edges(net, x, bits, augment, tile).cpu().numpy()
-        out = [decode_edges(m, lp, bits, net.max_jump) for m, lp in zip(planes, logp, strict=True)]
-        k = np.stack([refine_cut(m, kk, lp, bits, max_cuts) for m, (kk, _), lp in zip(planes, out, logp, strict=True)])
-        return k, np.stack([c for _, c in out])
-    jump, cost = predict_jumps(net, x, bits, augment, tile)
-    out = [decode_jumps(m, j, c, bits) for m, j, c in zip(planes, jump, cost, strict=True)]
-    return np.stack([k for k, _ in out]), np.stack([c for _, c in out])
+        first = jump.astype(np.int64) - band
+        k = np.stack([refine_band(*a, bits, max_cuts) for a in zip(planes, k, cost, first, strict=True)])
+    return k, np.stack([c for _, c in out])
 
 
 def learned_confidence(
@@ -568,6 +640,17 @@ def check_weights(value: object, name: str) -> str | None:
     if not Path(value).is_file():
         raise ValueError(f"{name} must be an existing weights file; got {str(value)!r}")
     return str(value)
+
+
+def mosaic_spec(spec: Any) -> Any:
+    """``spec`` for a mosaic's interpolated guide: ``"learned"`` runs :data:`MOSAIC_CUTS` cuts unless told otherwise.
+
+    The other methods, and a ``max_cuts`` the caller chose, are kept as they are.
+    """
+    if spec.method != "learned" or "max_cuts" in dict(spec.options):
+        return spec
+    options = {**dict(spec.options), "max_cuts": MOSAIC_CUTS}
+    return dataclasses.replace(spec, options=tuple(sorted(options.items())))
 
 
 def _check_cuts(value: object, name: str) -> int:
