@@ -246,10 +246,11 @@ class TestUnwrap:
         counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
         counts[:, 3:6, 8:12] += 1664  # a block 6.5 periods up: steep steps all round, its level is a guess
         write_image(tmp_path / "in" / "img.png", torch.remainder(counts, 256), {"bits": 8})
-        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single") == 0
+        guided = ("--single", "--method", "guided")
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *guided) == 0
         assert not (tmp_path / "out" / "img.confidence.exr").exists()
         # asking for the map is another option: the image is redone and both files are written
-        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--confidence") == 0
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *guided, "--confidence") == 0
         assert _names(_report(tmp_path / "out", "unwrap")["done"]) == ["img.png"]
         restored = read_image(tmp_path / "out" / "img.exr", dtype=torch.float64)
         confidence, meta = read_image(tmp_path / "out" / "img.confidence.exr", with_metadata=True)
@@ -257,7 +258,7 @@ class TestUnwrap:
         assert float(confidence[:, 3:6, 8:12].max()) < 0.35 < 0.5 < float(confidence[:, 8:, :].min())
         assert meta["unit"] == "confidence in [0, 1]"
         (tmp_path / "out" / "img.confidence.exr").unlink()  # a missing output makes the task incomplete
-        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--confidence") == 0
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *guided, "--confidence") == 0
         assert (tmp_path / "out" / "img.confidence.exr").exists()
 
     def test_single_shot_learned_confidence(self, tmp_path: Path) -> None:
@@ -267,12 +268,13 @@ class TestUnwrap:
         counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
         modulus = torch.remainder(counts, 256)
         write_image(tmp_path / "in" / "img.png", modulus, {"bits": 8})
-        args = ("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--method", "learned", "--confidence")
-        assert _cli(*args) == 0
-        restored = read_image(tmp_path / "out" / "img.exr", dtype=torch.float64)
-        assert torch.equal(torch.remainder(restored, 256), modulus)
-        confidence = read_image(tmp_path / "out" / "img.confidence.exr", dtype=torch.float64)
-        torch.testing.assert_close(confidence, learned_confidence(modulus.double(), 8).float().double())
+        expected = learned_confidence(modulus.double(), 8).float().double()
+        for method in (("--method", "learned"), ()):  # named, and as the default method
+            out = tmp_path / f"out{len(method)}"
+            assert _cli("unwrap", tmp_path / "in", out, "--single", *method, "--confidence") == 0
+            restored = read_image(out / "img.exr", dtype=torch.float64)
+            assert torch.equal(torch.remainder(restored, 256), modulus)
+            torch.testing.assert_close(read_image(out / "img.confidence.exr", dtype=torch.float64), expected)
 
 
 # ---------------------------------------------------------------------------------------------------- tonemap

@@ -512,9 +512,9 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
         **colour,
     }
     if options.get("confidence"):
-        if options["solver"] == "learned" and cfa is None:  # the network's own probabilities
-            from torch_modulo.singleshot import learned_confidence
+        from torch_modulo.singleshot import METHODS, learned_confidence
 
+        if (options["solver"] or METHODS[0]) == "learned" and cfa is None:  # the network's own probabilities
             confidence = learned_confidence(image.double(), bits)
         else:
             confidence = restored_confidence(counts.double(), bits, cfa)
