@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from bench_single import GROUPS, select_scenes  # the sibling script: the same scene choice and summary groups
 
 import torch_modulo as tm
 from torch_modulo import protocols
@@ -53,20 +54,6 @@ BITS = 8
 PERIOD = 2**BITS
 PEAK = protocols.PROTOCOL_PEAKS["B"]
 WAYS = ("rgb", "rgb@sites", "mosaic", "planes", "grey")
-#: Summary groups: every scene, and each side of the split.
-GROUPS = ("all", "train", "validation")
-
-
-def select_scenes(data: Path, names: list[str] | None, split: str, max_scenes: int) -> list[Path]:
-    """The scenes under ``data``: those named (paths relative to ``data``), else the ``split``; exits if none."""
-    scenes = [data / n for n in names] if names else protocols.list_scenes(data, split)
-    missing = [str(p) for p in scenes if not p.is_file()]
-    if missing:
-        raise SystemExit(f"scenes not found: {', '.join(missing)}")
-    scenes = scenes[:max_scenes] if max_scenes else scenes
-    if not scenes:
-        raise SystemExit(f"no .exr/.hdr scenes under {data} (split {split!r})")
-    return scenes
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:

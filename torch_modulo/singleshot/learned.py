@@ -517,7 +517,7 @@ def refine_band(
     failures = 0
     for cut in range(max_cuts):
         delta = 1 if cut % 2 == 0 else -1
-        same, second_moves, first_moves = costs(k), costs(k, 0, delta), costs(k, delta, 0)
+        second_moves, first_moves = costs(k, 0, delta), costs(k, delta, 0)
         graph = maxflow.Graph[float](n, sum(int(x.sum()) for _, _, x in ends))
         graph.add_nodes(n)
         unary = np.zeros(n)
@@ -529,9 +529,10 @@ def refine_band(
         graph.add_grid_tedges(nodes, np.maximum(unary, 0.0), np.maximum(-unary, 0.0))
         graph.maxflow()
         trial = k + delta * graph.get_grid_segments(nodes)[labels]
-        new = sum(float(c.sum(dtype=np.float64)) for c in costs(trial))
+        trial_costs = costs(trial)
+        new = sum(float(c.sum(dtype=np.float64)) for c in trial_costs)
         if new < energy - 1e-9 * max(1.0, energy):
-            k, energy, failures = trial, new, 0
+            k, same, energy, failures = trial, trial_costs, new, 0
         else:
             failures += 1
             if failures >= 2:
