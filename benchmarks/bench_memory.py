@@ -7,11 +7,14 @@ just before the call (after imports, the scene and a small warm-up), so it count
 torch and numpy alike, but not the input itself. Exact-k (each channel's offset aligned) checks the result.
 
 Methods take options as in ``benchmarks/bench_single.py``: ``guided:tile_pixels=0`` solves the whole image at once.
+With ``--cfa PATTERN`` the RGB scene is mosaicked (an even side) and unwrapped as a mosaic (``unwrap_single(...,
+cfa=PATTERN)``); exact-k is then scored on its four colour planes.
 
 Examples:
     python benchmarks/bench_memory.py                                   # guided, 1 and 4 MP, RGB
     python benchmarks/bench_memory.py --sizes 0.25 1 4 16 --methods guided guided:tile_pixels=0 fast
     python benchmarks/bench_memory.py --sizes 36 --methods guided        # a 6000 x 6000 RGB image (~3 GB)
+    python benchmarks/bench_memory.py --cfa RGGB --methods learned learned:max_cuts=0   # Bayer mosaics
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import numpy as np
 import torch
 
 from torch_modulo import protocols
+from torch_modulo.cfa import CFA_PATTERNS, mosaic, split_planes
 from torch_modulo.singleshot import unwrap_single
 
 BITS = 8
@@ -62,21 +66,25 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def probe(spec: str, mp: float, channels: int) -> dict[str, Any]:
+def probe(spec: str, mp: float, channels: int, cfa: str | None = None) -> dict[str, Any]:
     """Run in a fresh process: seconds, peak RSS above the RSS before the call, and exact-k."""
     name, options = protocols.parse_method(spec)
     truth = synthetic(mp, channels)
+    if cfa is not None:  # one mosaicked frame of the RGB scene
+        truth = mosaic(truth[:, : truth.shape[1] // 2 * 2, : truth.shape[2] // 2 * 2], cfa)
     modulus = torch.remainder(truth, 2**BITS)
-    unwrap_single(modulus[:, :16, :16].contiguous(), BITS, method=name, workers=1, **options)  # warm-up
+    unwrap_single(modulus[:, :16, :16].contiguous(), BITS, method=name, workers=1, cfa=cfa, **options)  # warm-up
     base = rss_mb()
     start = time.perf_counter()
-    restored = unwrap_single(modulus, BITS, method=name, workers=1, **options)
+    restored = unwrap_single(modulus, BITS, method=name, workers=1, cfa=cfa, **options)
     seconds = time.perf_counter() - start
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - base
-    exact = protocols.score_scene(restored, truth, BITS, PEAK).exact_k
+    scored = (restored, truth) if cfa is None else (split_planes(restored), split_planes(truth))
+    exact = protocols.score_scene(*scored, BITS, PEAK).exact_k
     return {
         "method": spec,
         "channels": channels,
+        "cfa": cfa,
         "mp": truth[0].numel() / 1e6,
         "seconds": seconds,
         "peak_mb": peak,
@@ -89,16 +97,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--methods", nargs="+", default=["guided"])
     ap.add_argument("--sizes", nargs="+", type=float, default=[1.0, 4.0], help="megapixels per channel")
     ap.add_argument("--channels", type=int, default=3)
+    ap.add_argument("--cfa", default=None, choices=CFA_PATTERNS, help="unwrap one Bayer mosaic of the RGB scene")
     ap.add_argument("--probe", nargs=2, metavar=("METHOD", "MP"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
-        print(json.dumps(probe(args.probe[0], float(args.probe[1]), args.channels)))
+        print(json.dumps(probe(args.probe[0], float(args.probe[1]), args.channels, args.cfa)))
         return
     rows = []
     print(f"{'method':24s} {'MP':>6s} {'s':>8s} {'s/MP':>7s} {'peak MB':>9s} {'MB/MP':>7s} {'exact-k':>8s}")
     for mp in args.sizes:
         for spec in args.methods:
             cmd = [sys.executable, __file__, "--probe", spec, str(mp), "--channels", str(args.channels)]
+            cmd += ["--cfa", args.cfa] if args.cfa else []
             res = subprocess.run(cmd, capture_output=True, text=True, check=False)
             if res.returncode != 0:
                 print(f"{spec:24s} {mp:6.2f} failed: {res.stderr.strip().splitlines()[-1:]}", flush=True)
