@@ -482,7 +482,7 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         help="with --single: also write OUT/<image>.confidence.exr, unwrap_confidence's map (1: the rollover count "
         "is determined by the image; 0: it was guessed, take a second exposure there; of a mosaic, per colour "
         "plane, one value per photosite); with the learned method (the default; not a mosaic), "
-        "learned_confidence's map from the network's probabilities",
+        "learned_confidence's map, from the network's probabilities of the same run",
     )
     unwrap.add_argument(
         "--method",

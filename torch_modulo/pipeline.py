@@ -500,7 +500,10 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
 
     image, bits, exposure, truth, cfa = _single_frame(task, options)
     method = {"method": options["solver"]} if options["solver"] is not None else {}
-    counts = unwrap_single(image.unsqueeze(0), bits, workers=options["_solver_workers"], cfa=cfa, **method)[0]
+    counts, solved = unwrap_single(
+        image.unsqueeze(0), bits, workers=options["_solver_workers"], cfa=cfa, return_info=True, **method
+    )
+    counts = counts[0]
     radiance, colour = restored_colour(counts.double() / exposure, cfa, demosaic=options.get("demosaic", True))
     metadata = {
         "source": task.name,
@@ -512,10 +515,8 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
         **colour,
     }
     if options.get("confidence"):
-        from torch_modulo.singleshot import METHODS, learned_confidence
-
-        if (options["solver"] or METHODS[0]) == "learned" and cfa is None:  # the network's own probabilities
-            confidence = learned_confidence(image.double(), bits)
+        if solved.confidence is not None and cfa is None:  # the learned method's own, from the same run
+            confidence = solved.confidence[0]
         else:
             confidence = restored_confidence(counts.double(), bits, cfa)
         write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})

@@ -308,6 +308,26 @@ class TestConfidence:
             single = torch.stack([learned_confidence(m) for m in modulus])
             assert torch.equal(confidence, single)
 
+    def test_info_confidence_is_the_same_runs(self, device: torch.device) -> None:
+        g = torch.Generator().manual_seed(1)
+        batch = torch.from_numpy(np.stack([scene(40, s) for s in range(3)]) % 256)[None].repeat(2, 1, 1, 1)
+        batch[1] = torch.randint(0, 256, batch.shape[1:], generator=g).double()
+        batch = batch.float().to(device)
+        restored, info = unwrap_single(batch, 8, return_info=True)
+        assert info.confidence is not None
+        assert info.confidence.shape == batch.shape and info.confidence.dtype == batch.dtype
+        assert info.confidence.device == batch.device
+        assert torch.equal(info.confidence, learned_confidence(batch))
+        assert bool((info.confidence[0] > info.confidence[1].mean()).all())  # smooth scenes beat noise
+        # the other methods have no confidence of their own
+        assert unwrap_single(batch[0, 0], 8, method="guided", return_info=True)[1].confidence is None
+        assert unwrap_single(batch[0, 0], 8, method="lsq", return_info=True)[1].confidence is None
+        # a mosaic: the guide's confidence at each photosite, with the mosaic's shape
+        guide = interpolate_wrapped(batch[0, :1], "RGGB", 8)
+        _, mosaic_info = unwrap_single(batch[0, :1], 8, cfa="RGGB", return_info=True, max_cuts=0)
+        expected = mosaic(learned_confidence(guide), "RGGB")
+        assert torch.equal(mosaic_info.confidence, expected.reshape(batch[0, :1].shape))
+
     def test_learned_confidence_is_the_decoders(self) -> None:
         truth = np.stack([scene(40, s) for s in range(3)])
         modulus = torch.from_numpy(truth % 256)

@@ -91,6 +91,10 @@ class SingleShotInfo:
             ``energies`` when anchoring clipped a few pixels below the darkest region to ``k = 0``).
         seconds: (B, C) float64, wall time per plane.
         method: the method used.
+        confidence: per-value confidence in ``(0, 1]`` from the same run, with the shape, dtype and device of the
+            output, for the methods that give one (``"learned"``: the map of
+            :func:`~torch_modulo.learned_confidence`, of the spanning tree before any ``max_cuts`` moves; of a
+            mosaic, that of its interpolated guide at each photosite), else None.
     """
 
     energies: list[list[list[float]]] = field(default_factory=list)
@@ -99,6 +103,7 @@ class SingleShotInfo:
     energy: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.float64))
     seconds: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.float64))
     method: str = "learned"
+    confidence: torch.Tensor | None = None
 
 
 def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tuple[torch.Tensor, SingleShotInfo]:
@@ -147,6 +152,9 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
         seconds=grid("seconds", torch.float64),
         method=spec.method,
     )
+    if infos and all("confidence" in i for i in infos):
+        maps = torch.from_numpy(np.stack([i["confidence"] for i in infos]))
+        info.confidence = maps.to(dtype=modulus.dtype).reshape(modulus.shape).to(device=modulus.device)
     return out, info
 
 
@@ -164,6 +172,8 @@ def _solve_mosaic(
         )
     guide = interpolate_wrapped(modulus if modulus.dim() > 2 else modulus[None], cfa, spec.params.bits)
     out, info = _solve(guide, mosaic_spec(spec), workers)
+    if info.confidence is not None:
+        info.confidence = mosaic(info.confidence, cfa).reshape(modulus.shape)
     return mosaic(out, cfa).reshape(modulus.shape), info
 
 
@@ -214,7 +224,8 @@ def unwrap_single(
             pay for a pool, else runs in-process; 1 always runs in-process, and so does any value inside a
             daemonic process (a DataLoader worker, say). Scripts that use a pool need the usual
             ``if __name__ == "__main__":`` guard. ``"lsq"`` uses none: it solves the batch on its device.
-        return_info: also return a :class:`SingleShotInfo` (energy per iteration, iteration counts, timings).
+        return_info: also return a :class:`SingleShotInfo` (energy per iteration, iteration counts, timings; for
+            ``"learned"`` the confidence map of the same run, :attr:`SingleShotInfo.confidence`).
         cfa: None, or the colour filter array of a mosaic (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``):
             ``modulus`` is then (B, 1, H, W), (1, H, W) or (H, W) with an even height and width. Its wrapped colours
             are interpolated on the circle to full resolution (:func:`torch_modulo.cfa.interpolate_wrapped`), that

@@ -594,7 +594,8 @@ def learned_confidence(
     :func:`decode_jumps`). Low values mark pixels whose level hangs on an unsure jump: check them, or take a second
     exposure there. Like :func:`~torch_modulo.unwrap_confidence` (which reads the restored image alone), it cannot
     flag a region the network puts at a wrong level with confidence. Runs the network again (same options as the
-    method).
+    method); ``unwrap_single(..., return_info=True)`` gives the same map from its own run
+    (:attr:`~torch_modulo.singleshot.SingleShotInfo.confidence`).
 
     Args:
         modulus: wrapped values in ``[0, 2**bits)``, floating, (B, C, H, W), (C, H, W) or (H, W), on any device.
@@ -677,12 +678,13 @@ LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
 }
 
 
-def _learned_ks(moduli: np.ndarray | torch.Tensor, spec: Any) -> np.ndarray:
-    """``k`` (not anchored) of one image's channels under ``spec``'s options, the network on the moduli's device."""
+def _learned_ks(moduli: np.ndarray | torch.Tensor, spec: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` (not anchored) and the confidence of one image's channels under ``spec``'s options, the network on the
+    moduli's device."""
     device = moduli.device if isinstance(moduli, torch.Tensor) else torch.device("cpu")
     net = load_model(spec.option("weights"), device=device)
     options = (int(spec.option("max_cuts")), spec.option("augment"), int(spec.option("tile")))
-    return learned_k(moduli, spec.params.bits, net, *options)[0]
+    return learned_k(moduli, spec.params.bits, net, *options)
 
 
 def solve_learned(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:
@@ -695,20 +697,23 @@ def solve_learned(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray
 
     start = time.perf_counter()
     p = spec.params
-    restored = moduli + p.period * _learned_ks(moduli, spec)
+    restored = moduli + p.period * _learned_ks(moduli, spec)[0]
     for plane, st in zip(restored, stats, strict=True):
         st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
         st.tick("learned", start)
     return restored
 
 
-def solve_learned_tensor(moduli: torch.Tensor, spec: Any) -> torch.Tensor:
-    """The registry's tensor solver: a (B, C, H, W) batch to ``k`` (not anchored), the network on the batch's device.
+def solve_learned_tensor(moduli: torch.Tensor, spec: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """The registry's tensor solver: a (B, C, H, W) batch to ``k`` (not anchored) and the confidence of every value
+    (float64, as :func:`learned_confidence`, from the same run of the network), both on the CPU.
 
     The network runs where the moduli are (a GPU when they are there); the integer decoding runs on the CPU.
     """
-    ks = [_learned_ks(image, spec) for image in moduli]
-    return torch.from_numpy(np.stack(ks)) if ks else torch.zeros(moduli.shape, dtype=torch.int64)
+    if not len(moduli):
+        return torch.zeros(moduli.shape, dtype=torch.int64), torch.ones(moduli.shape, dtype=torch.float64)
+    ks, confidences = zip(*(_learned_ks(image, spec) for image in moduli), strict=True)
+    return torch.from_numpy(np.stack(ks)), torch.from_numpy(np.stack(confidences).astype(np.float64))
 
 
 # ------------------------------------------------------------------------------------------------------- training

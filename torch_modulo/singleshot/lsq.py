@@ -334,18 +334,20 @@ LSQ_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
 }
 
 
-def solve_lsq_tensor(moduli: torch.Tensor, spec: Any) -> torch.Tensor:
-    """The registry's tensor solver: (B, C, H, W) moduli on any device to int64 ``k`` there (not anchored).
+def solve_lsq_tensor(moduli: torch.Tensor, spec: Any) -> tuple[torch.Tensor, None]:
+    """The registry's tensor solver: (B, C, H, W) moduli on any device to int64 ``k`` there (not anchored), and no
+    confidence.
 
     Options (``spec.option``): :data:`LSQ_OPTIONS`.
     """
-    return lsq_k(
+    k = lsq_k(
         moduli.detach(),
         spec.params.bits,
         iterations=int(spec.option("iterations")),
         cg_iterations=int(spec.option("cg_iterations")),
         colour=bool(spec.option("colour")),
     )
+    return k, None
 
 
 def solve_lsq(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:
@@ -356,7 +358,7 @@ def solve_lsq(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:
     from torch_modulo.singleshot.grid import pair_offsets
 
     start = time.perf_counter()
-    k = solve_lsq_tensor(torch.from_numpy(np.asarray(moduli, dtype=np.float64))[None], spec)[0]
+    k = solve_lsq_tensor(torch.from_numpy(np.asarray(moduli, dtype=np.float64))[None], spec)[0][0]
     restored = moduli + spec.params.period * k.numpy()
     for plane, st in zip(restored, stats, strict=True):
         st.energies.append(plane_energy(plane, spec.params, pair_offsets(spec.neighborhood)))

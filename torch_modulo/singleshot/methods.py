@@ -10,9 +10,10 @@ A solver takes a group of planes: ``(moduli (G, H, W) int64, spec, one MoveStats
 of an image for the methods with ``joint_channels``. It may leave ``k`` with any global constant:
 :func:`solve_group` anchors every plane afterwards (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
 
-A method may also have a tensor solver, ``(moduli (B, C, H, W) floating tensor, spec) -> k (B, C, H, W) int64``
-on the input's device (``solve_tensor``): :func:`~torch_modulo.singleshot.unwrap_single` then hands it the whole
-batch where it lies, with no worker pool, and :func:`solve_on_device` anchors the result on the CPU.
+A method may also have a tensor solver, ``(moduli (B, C, H, W) floating tensor, spec) -> (k (B, C, H, W) int64,
+confidence (B, C, H, W) or None)`` on the input's device (``solve_tensor``):
+:func:`~torch_modulo.singleshot.unwrap_single` then hands it the whole batch where it lies, with no worker pool, and
+:func:`solve_on_device` anchors the result on the CPU.
 """
 
 from __future__ import annotations
@@ -101,8 +102,9 @@ class SolverSpec:
 #: ``(moduli (G, H, W) int64, spec, one MoveStats per plane) -> restored (G, H, W) int64``.
 GroupSolver = Callable[[np.ndarray, SolverSpec, list[MoveStats]], np.ndarray]
 
-#: ``(moduli (B, C, H, W) floating tensor, spec) -> k (B, C, H, W) int64``, on the input's device, not anchored.
-TensorSolver = Callable[[torch.Tensor, SolverSpec], torch.Tensor]
+#: ``(moduli (B, C, H, W) floating tensor, spec) -> (k (B, C, H, W) int64, confidence or None)``, on the input's
+#: device, not anchored; the confidence (B, C, H, W) in ``(0, 1]`` is the method's own, where it has one.
+TensorSolver = Callable[[torch.Tensor, SolverSpec], tuple[torch.Tensor, torch.Tensor | None]]
 
 
 @dataclass(frozen=True)
@@ -323,15 +325,20 @@ def solve_on_device(moduli: torch.Tensor, spec: SolverSpec) -> list[tuple[np.nda
 
     Returns:
         One ``(restored, info)`` per plane, in (B, C) order, as :func:`solve_group` (``energies`` holds the energy
-        of the returned counts, ``steps`` is empty, ``cuts`` 0).
+        of the returned counts, ``steps`` is empty, ``cuts`` 0), plus ``confidence``: the plane's (H, W) float64
+        confidence where the method gives one.
     """
     start = time.perf_counter()
     h, w = moduli.shape[-2:]
-    k = REGISTRY[spec.method].solve_tensor(moduli.detach(), spec).to("cpu").numpy().reshape(-1, h, w)
+    k, confidence = REGISTRY[spec.method].solve_tensor(moduli.detach(), spec)
+    k = k.to("cpu").numpy().reshape(-1, h, w)
     planes = moduli.detach().to("cpu", torch.float64).numpy().astype(np.int64).reshape(-1, h, w)
     out = _anchor_and_report(planes, planes + spec.params.period * k, [MoveStats() for _ in planes], spec, start)
-    for _, info in out:
+    maps = [None] * len(out) if confidence is None else confidence.to("cpu", torch.float64).numpy().reshape(-1, h, w)
+    for (_, info), plane in zip(out, maps, strict=True):
         info["energies"] = [info["energy"]]
+        if plane is not None:
+            info["confidence"] = plane
     return out
 
 
