@@ -203,6 +203,16 @@ class TestDecoders:
         with pytest.raises(TypeError, match="augment"):
             unwrap_single(modulus, method="learned", augment=1)
 
+    def test_grey_computes_one_channel(self) -> None:
+        net = load_model()
+        grey = torch.from_numpy(scene(24) % 256).float()[None]
+        features = edge_features(grey[None].expand(1, 3, 24, 24), 8)
+        with torch.no_grad():
+            one, three = net(features, 1), net(features)
+        assert one.shape == (1, 1, 2, 2 * net.max_jump + 1, 24, 24)
+        torch.testing.assert_close(one, three[:, :1])
+        assert torch.equal(predict_edges(net, grey, 8), torch.log_softmax(one, dim=3)[0])
+
     def test_predict_edges_pads_odd_sizes(self) -> None:
         net = EdgeJumpNet(width=4, max_jump=2)
         logp = predict_edges(net, torch.zeros(3, 13, 7), 8)

@@ -112,7 +112,8 @@ class EdgeJumpNet(nn.Module):
     Shape:
         - Input: (B, 15, H, W) features, ``H`` and ``W`` multiples of 4 (:func:`predict_edges` pads).
         - Output: (B, 3, 2, 2J + 1, H, W) logits: channel, direction (0: to the right neighbour, 1: to the one
-          below), jump ``n + J``.
+          below), jump ``n + J``; with ``forward(x, channels)``, those of the first ``channels`` channels alone (a
+          grey image, repeated into the three slots, needs one).
 
     Example:
         >>> net = EdgeJumpNet(width=4, max_jump=2)
@@ -133,7 +134,7 @@ class EdgeJumpNet(nn.Module):
         self.dec1 = nn.Sequential(_block(2 * w + w, w), _block(w, w))
         self.head = nn.Conv2d(w, SLOTS * 2 * (2 * self.max_jump + 1), 1)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, channels: int = SLOTS) -> torch.Tensor:
         e1 = self.enc1(x)
         e2 = self.enc2(F.avg_pool2d(e1, 2))
         e3 = self.enc3(F.avg_pool2d(e2, 2))
@@ -142,7 +143,9 @@ class EdgeJumpNet(nn.Module):
         d2 = self.dec2(torch.cat([F.interpolate(e3, scale_factor=2.0, mode="nearest"), e2], dim=1))
         d1 = self.dec1(torch.cat([F.interpolate(d2, scale_factor=2.0, mode="nearest"), e1], dim=1))
         b, _, h, w = x.shape
-        return self.head(d1).view(b, SLOTS, 2, 2 * self.max_jump + 1, h, w)
+        n = channels * 2 * (2 * self.max_jump + 1)  # the head's outputs are channel-major: keep the first n
+        logits = F.conv2d(d1, self.head.weight[:n], self.head.bias[:n]) if channels < SLOTS else self.head(d1)
+        return logits.view(b, channels, 2, 2 * self.max_jump + 1, h, w)
 
 
 @functools.lru_cache(maxsize=4)
@@ -230,8 +233,8 @@ def _tiles(n: int, tile: int, margin: int) -> list[tuple[int, int, int, int]]:
     return out
 
 
-def _window_logp(net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool) -> torch.Tensor:
-    """(3, 2, 2J + 1, h, w) jump log-probabilities of one (1, 3, h, w) window of moduli."""
+def _window_logp(net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool, channels: int) -> torch.Tensor:
+    """(channels, 2, 2J + 1, h, w) jump log-probabilities of one (1, 3, h, w) window of moduli."""
     _, _, h, w = x.shape
     ph, pw = -h % 4, -w % 4
     total = None
@@ -239,7 +242,7 @@ def _window_logp(net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool) ->
         xf = x.flip(dims) if dims else x
         xf = F.pad(xf, (0, pw, 0, ph), mode="replicate") if ph or pw else xf
         with torch.no_grad():
-            logp = torch.log_softmax(net(edge_features(xf, bits)).float(), dim=3)[0, :, :, :, :h, :w]
+            logp = torch.log_softmax(net(edge_features(xf, bits), channels).float(), dim=3)[0, :, :, :, :h, :w]
         logp = _unflip(logp, dims) if dims else logp
         total = logp if total is None else total + logp
     return torch.log_softmax(total, dim=2) if augment else total
@@ -259,8 +262,8 @@ def _windows(
     margin = tile_margin(net)
     for y0, y1, cy0, cy1 in _tiles(h, tile, margin):
         for x0, x1, cx0, cx1 in _tiles(w, tile, margin):
-            logp = _window_logp(net, x[..., y0:y1, x0:x1], bits, augment)
-            yield (slice(cy0, cy1), slice(cx0, cx1)), logp[:c, :, :, cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0]
+            logp = _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c)
+            yield (slice(cy0, cy1), slice(cx0, cx1)), logp[..., cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0]
 
 
 def predict_edges(
