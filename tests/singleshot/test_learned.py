@@ -3,6 +3,7 @@ exact consistency with the modulus, the decoders, and a tiny training run."""
 
 from __future__ import annotations
 
+import base64
 import importlib.util
 from pathlib import Path
 
@@ -347,3 +348,38 @@ class TestConfidence:
             learned_confidence(modulus, weights="/nonexistent.pt")
         with pytest.raises(ValueError, match="integers"):
             learned_confidence(modulus + 0.5)
+
+
+class TestSelectionScenes:
+    def _module(self):
+        path = TRAIN_SCRIPT.with_name("fetch_selection_scenes.py")
+        spec = importlib.util.spec_from_file_location("fetch_selection_scenes", path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    def _package(self, payloads: dict) -> bytes:
+        import io
+        import tarfile
+
+        buffer = io.BytesIO()
+        with tarfile.open(fileobj=buffer, mode="w:gz") as tar:
+            for name, data in payloads.items():
+                text = f"export default 'data:application/exr;base64,{base64.b64encode(data).decode()}'\n".encode()
+                info = tarfile.TarInfo(f"package/hdri/{name}.exr.js")
+                info.size = len(text)
+                tar.addfile(info, io.BytesIO(text))
+        return buffer.getvalue()
+
+    def test_decodes_the_embedded_exr_files(self) -> None:
+        fetch = self._module()
+        payloads = {name: b"\x76\x2f\x31\x01" + name.encode() * 3 for name in fetch.SCENES}
+        payloads["hall"] = b"\x76\x2f\x31\x01hall"  # a training scene in the package: not taken
+        assert fetch.scenes_from_package(self._package(payloads)) == {n: payloads[n] for n in fetch.SCENES}
+
+    def test_refuses_what_is_not_exr(self) -> None:
+        fetch = self._module()
+        payloads = {name: b"\x76\x2f\x31\x01" for name in fetch.SCENES}
+        payloads["night"] = b"GIF89a"
+        with pytest.raises(ValueError, match="night"):
+            fetch.scenes_from_package(self._package(payloads))
