@@ -38,6 +38,14 @@ from torch_modulo.singleshot.methods import make_spec
 TRAIN_SCRIPT = Path(__file__).resolve().parents[2] / "references" / "learned_single" / "train.py"
 
 
+def load_script(path: Path):
+    """A script of the training recipe, imported as a module."""
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 @pytest.fixture(autouse=True)
 def one_thread():
     """Small convolutions run fastest on one thread (and do not fight the other processes of a shared machine)."""
@@ -248,9 +256,7 @@ class TestTraining:
     def test_mosaic_pairs(self) -> None:
         """The training recipe's mosaic samples: the guide unwrap_single sees, a target congruent with it that keeps
         the true photosite counts, and is the true counts where the colours are linear ramps."""
-        spec = importlib.util.spec_from_file_location("train_learned", TRAIN_SCRIPT)
-        train = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(train)
+        train = load_script(TRAIN_SCRIPT)
         counts = torch.from_numpy(np.stack([scene(24, s) for s in range(3)])).double()
         guide, target = train.mosaic_pair(counts, "BGGR")
         assert torch.equal(guide, interpolate_wrapped(mosaic(counts, "BGGR") % 256, "BGGR"))
@@ -351,13 +357,6 @@ class TestConfidence:
 
 
 class TestSelectionScenes:
-    def _module(self):
-        path = TRAIN_SCRIPT.with_name("fetch_selection_scenes.py")
-        spec = importlib.util.spec_from_file_location("fetch_selection_scenes", path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
-
     def _package(self, payloads: dict) -> bytes:
         import io
         import tarfile
@@ -372,13 +371,13 @@ class TestSelectionScenes:
         return buffer.getvalue()
 
     def test_decodes_the_embedded_exr_files(self) -> None:
-        fetch = self._module()
+        fetch = load_script(TRAIN_SCRIPT.with_name("fetch_selection_scenes.py"))
         payloads = {name: b"\x76\x2f\x31\x01" + name.encode() * 3 for name in fetch.SCENES}
         payloads["hall"] = b"\x76\x2f\x31\x01hall"  # a training scene in the package: not taken
         assert fetch.scenes_from_package(self._package(payloads)) == {n: payloads[n] for n in fetch.SCENES}
 
     def test_refuses_what_is_not_exr(self) -> None:
-        fetch = self._module()
+        fetch = load_script(TRAIN_SCRIPT.with_name("fetch_selection_scenes.py"))
         payloads = {name: b"\x76\x2f\x31\x01" for name in fetch.SCENES}
         payloads["night"] = b"GIF89a"
         with pytest.raises(ValueError, match="night"):

@@ -143,9 +143,8 @@ class EdgeJumpNet(nn.Module):
         d2 = self.dec2(torch.cat([F.interpolate(e3, scale_factor=2.0, mode="nearest"), e2], dim=1))
         d1 = self.dec1(torch.cat([F.interpolate(d2, scale_factor=2.0, mode="nearest"), e1], dim=1))
         b, _, h, w = x.shape
-        n = channels * 2 * (2 * self.max_jump + 1)  # the head's outputs are channel-major: keep the first n
-        logits = F.conv2d(d1, self.head.weight[:n], self.head.bias[:n]) if channels < SLOTS else self.head(d1)
-        return logits.view(b, channels, 2, 2 * self.max_jump + 1, h, w)
+        n = channels * 2 * (2 * self.max_jump + 1)  # the head's outputs are channel-major: the first n
+        return F.conv2d(d1, self.head.weight[:n], self.head.bias[:n]).view(b, channels, 2, 2 * self.max_jump + 1, h, w)
 
 
 @functools.lru_cache(maxsize=4)
