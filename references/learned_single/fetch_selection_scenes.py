@@ -18,12 +18,12 @@ import argparse
 import base64
 import hashlib
 import io
-import os
 import sys
 import tarfile
-import tempfile
 import urllib.request
 from pathlib import Path
+
+from torch_modulo.batch.atomic import write_bytes
 
 URL = "https://registry.npmjs.org/@pmndrs/assets/-/assets-1.7.0.tgz"
 SHA512 = "zHmKNS+3Jvu9K3zJBQfYQKT9Pn9IQt8s0q/eJC3CXKpWpyg6IBa+ivN9NgDn+fDT2AVjUh2YRZ//GXUueuAdCg=="
@@ -67,9 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         if path.exists():
             print(f"kept {path} (exists)")
             continue
-        with tempfile.NamedTemporaryFile(dir=folder, suffix=".part", delete=False) as tmp:
-            tmp.write(data)
-        os.replace(tmp.name, path)  # atomic: a partial file never has the final name
+        write_bytes(path, data)  # atomic: a partial file never has the final name
         print(f"wrote {path} ({len(data)} bytes)")
     return 0
 

@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -17,7 +18,7 @@ from fakes import names as _names
 from fakes import run as _run
 
 from torch_modulo.batch import MARKER_FOLDER, atomic_output_dir, remove_stale_temporaries, write_json
-from torch_modulo.batch.atomic import final_names
+from torch_modulo.batch.atomic import final_names, write_bytes
 
 
 def _dead_pid() -> int:
@@ -53,15 +54,16 @@ class TestAtomicWrites:
         assert json.loads((tmp_path / "a" / "r.json").read_text()) == {"x": [1, 2]}
         assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["r.json"]
 
-    def test_write_json_on_a_full_disk_names_the_final_path(
-        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    @pytest.mark.parametrize("write", [lambda p: write_json(p, {"x": 1}), lambda p: write_bytes(p, b"x")])
+    def test_writes_on_a_full_disk_name_the_final_path(
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, write: Callable[[Path], Path]
     ) -> None:
         def full(self: Path, *args: object, **kwargs: object) -> int:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
 
-        monkeypatch.setattr(Path, "write_text", full)
+        monkeypatch.setattr(Path, "write_bytes", full)
         with pytest.raises(OSError) as info:
-            write_json(tmp_path / "r.json", {"x": 1})
+            write(tmp_path / "r.json")
         assert info.value.errno == errno.ENOSPC
         assert str(info.value) == f"[Errno 28] No space left on device: '{tmp_path / 'r.json'}'"
         assert os.listdir(tmp_path) == []

@@ -1,10 +1,10 @@
-"""Atomic writes for the batch engine: JSON files and output folders, and the clean-up of what a killed run left.
+"""Atomic writes for the batch engine: files (bytes, JSON), output folders, and the clean-up of what a killed run left.
 
 Every write goes to a hidden temporary name beside its final name and is renamed into place (``os.replace``), so a
 reader never sees half a file. The temporary names carry the writing process's id:
 
-- files: ``.<name>.<pid>-<hex>.tmp`` (:func:`write_json`), ``.<stem>.<pid>-<hex>.tmp<suffix>`` (images written by
-  :func:`torch_modulo.io.write_image`);
+- files: ``.<name>.<pid>-<hex>.tmp`` (:func:`write_bytes`, :func:`write_json`), ``.<stem>.<pid>-<hex>.tmp<suffix>``
+  (images written by :func:`torch_modulo.io.write_image`);
 - folders: ``.<name>.tmp-<pid>-<hex>`` and, while an old folder is being replaced, ``.<name>.old-<pid>-<hex>``
   (:func:`atomic_output_dir`).
 
@@ -25,7 +25,14 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_output_dir", "final_names", "free_space_note", "remove_stale_temporaries", "write_json"]
+__all__ = [
+    "atomic_output_dir",
+    "final_names",
+    "free_space_note",
+    "remove_stale_temporaries",
+    "write_bytes",
+    "write_json",
+]
 
 # .<name>.<pid>-<hex>.tmp[<suffix>]: temporary files (JSON, images)
 _FILE = re.compile(r"^\.(?P<base>.+)\.(?P<pid>\d+)-[0-9a-f]+\.tmp(?P<suffix>\.[^./]+)?$")
@@ -49,8 +56,8 @@ def _naming_final(error: OSError, final: Path) -> OSError:
     return OSError(error.errno, error.strerror, str(final))
 
 
-def write_json(path: str | os.PathLike[str], data: Any) -> Path:
-    """Write ``data`` as indented JSON atomically (temporary file in the same folder, then ``os.replace``).
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Write ``data`` atomically (temporary file in the same folder, then ``os.replace``), creating the folder.
 
     Raises:
         OSError: the file cannot be written, with the system's text (``No space left on device``) and the
@@ -59,15 +66,15 @@ def write_json(path: str | os.PathLike[str], data: Any) -> Path:
     Example:
         >>> import tempfile
         >>> with tempfile.TemporaryDirectory() as folder:
-        ...     path = write_json(os.path.join(folder, "r.json"), {"done": 2})
-        ...     json.loads(path.read_text()), os.listdir(folder)
-        ({'done': 2}, ['r.json'])
+        ...     path = write_bytes(os.path.join(folder, "a", "b.bin"), b"ok")
+        ...     path.read_bytes(), os.listdir(path.parent)
+        (b'ok', ['b.bin'])
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{_tag()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(data, indent=1, allow_nan=True) + "\n")
+        tmp.write_bytes(data)
         os.replace(tmp, path)
     except OSError as error:
         tmp.unlink(missing_ok=True)
@@ -76,6 +83,22 @@ def write_json(path: str | os.PathLike[str], data: Any) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def write_json(path: str | os.PathLike[str], data: Any) -> Path:
+    """Write ``data`` as indented JSON atomically (:func:`write_bytes`).
+
+    Raises:
+        OSError: as :func:`write_bytes`.
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     path = write_json(os.path.join(folder, "r.json"), {"done": 2})
+        ...     json.loads(path.read_text()), os.listdir(folder)
+        ({'done': 2}, ['r.json'])
+    """
+    return write_bytes(path, (json.dumps(data, indent=1, allow_nan=True) + "\n").encode("utf-8"))
 
 
 @contextlib.contextmanager
