@@ -54,14 +54,17 @@ class TestAtomicWrites:
         assert json.loads((tmp_path / "a" / "r.json").read_text()) == {"x": [1, 2]}
         assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["r.json"]
 
-    @pytest.mark.parametrize("write", [lambda p: write_json(p, {"x": 1}), lambda p: write_bytes(p, b"x")])
+    @pytest.mark.parametrize(
+        ("method", "write"),
+        [("write_text", lambda p: write_json(p, {"x": 1})), ("write_bytes", lambda p: write_bytes(p, b"x"))],
+    )
     def test_writes_on_a_full_disk_name_the_final_path(
-        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, write: Callable[[Path], Path]
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, method: str, write: Callable[[Path], Path]
     ) -> None:
         def full(self: Path, *args: object, **kwargs: object) -> int:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
 
-        monkeypatch.setattr(Path, "write_bytes", full)
+        monkeypatch.setattr(Path, method, full)
         with pytest.raises(OSError) as info:
             write(tmp_path / "r.json")
         assert info.value.errno == errno.ENOSPC

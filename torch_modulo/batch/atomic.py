@@ -21,7 +21,7 @@ import os
 import re
 import secrets
 import shutil
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +56,23 @@ def _naming_final(error: OSError, final: Path) -> OSError:
     return OSError(error.errno, error.strerror, str(final))
 
 
+def _write_atomic(path: Path, write: Callable[[Path], object]) -> Path:
+    """``write(temporary)`` beside ``path``, then rename it to ``path``; on failure nothing is left, and an
+    ``OSError`` names ``path``."""
+    tmp = path.with_name(f".{path.name}.{_tag()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as error:
+        tmp.unlink(missing_ok=True)
+        raise _naming_final(error, path) from error
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
 def write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     """Write ``data`` atomically (temporary file in the same folder, then ``os.replace``), creating the folder.
 
@@ -70,26 +87,15 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
         ...     path.read_bytes(), os.listdir(path.parent)
         (b'ok', ['b.bin'])
     """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{_tag()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except OSError as error:
-        tmp.unlink(missing_ok=True)
-        raise _naming_final(error, path) from error
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return _write_atomic(Path(path), lambda tmp: tmp.write_bytes(data))
 
 
 def write_json(path: str | os.PathLike[str], data: Any) -> Path:
-    """Write ``data`` as indented JSON atomically (:func:`write_bytes`).
+    """Write ``data`` as indented JSON atomically (temporary file in the same folder, then ``os.replace``).
 
     Raises:
-        OSError: as :func:`write_bytes`.
+        OSError: the file cannot be written, with the system's text (``No space left on device``) and the
+            final path; nothing is left under the final or a temporary name.
 
     Example:
         >>> import tempfile
@@ -98,7 +104,7 @@ def write_json(path: str | os.PathLike[str], data: Any) -> Path:
         ...     json.loads(path.read_text()), os.listdir(folder)
         ({'done': 2}, ['r.json'])
     """
-    return write_bytes(path, (json.dumps(data, indent=1, allow_nan=True) + "\n").encode("utf-8"))
+    return _write_atomic(Path(path), lambda tmp: tmp.write_text(json.dumps(data, indent=1, allow_nan=True) + "\n"))
 
 
 @contextlib.contextmanager
