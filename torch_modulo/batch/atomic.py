@@ -91,11 +91,7 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
 
 
 def write_json(path: str | os.PathLike[str], data: Any) -> Path:
-    """Write ``data`` as indented JSON atomically (temporary file in the same folder, then ``os.replace``).
-
-    Raises:
-        OSError: the file cannot be written, with the system's text (``No space left on device``) and the
-            final path; nothing is left under the final or a temporary name.
+    """Write ``data`` as indented JSON atomically, as :func:`write_bytes` writes bytes (and raises alike).
 
     Example:
         >>> import tempfile
