@@ -6,7 +6,9 @@ memory), wrapped to 8 bits and unwrapped once with ``workers=1``. The peak is th
 just before the call (after imports, the scene and a small warm-up), so it counts everything the call allocates,
 torch and numpy alike, but not the input itself. Exact-k (each channel's offset aligned) checks the result.
 
-Methods take options as in ``benchmarks/bench_single.py``: ``guided:tile_pixels=0`` solves the whole image at once.
+Methods take options as in ``benchmarks/bench_single.py``: ``guided:tile_pixels=0`` solves the whole image at once;
+``skimage`` is scikit-image's ``unwrap_phase`` (not on mosaics). ``bench_single.py --memory`` runs this script with
+``--channels 1``.
 With ``--cfa PATTERN`` the RGB scene is mosaicked (an even side) and unwrapped as a mosaic (``unwrap_single(...,
 cfa=PATTERN)``); exact-k is then scored on its four colour planes.
 
@@ -68,15 +70,27 @@ def rss_mb() -> float:
 
 def probe(spec: str, mp: float, channels: int, cfa: str | None = None) -> dict[str, Any]:
     """Run in a fresh process: seconds, peak RSS above the RSS before the call, and exact-k."""
-    name, options = protocols.parse_method(spec)
     truth = synthetic(mp, channels)
     if cfa is not None:  # one mosaicked frame of the RGB scene
         truth = mosaic(truth[:, : truth.shape[1] // 2 * 2, : truth.shape[2] // 2 * 2], cfa)
     modulus = torch.remainder(truth, 2**BITS)
-    unwrap_single(modulus[:, :16, :16].contiguous(), BITS, method=name, workers=1, cfa=cfa, **options)  # warm-up
+    if spec == "skimage":
+        if cfa is not None:
+            raise SystemExit("skimage does not unwrap mosaics")
+        from bench_single import skimage_unwrap  # beside this script
+
+        def run(m: torch.Tensor) -> torch.Tensor:
+            return torch.from_numpy(skimage_unwrap(m.numpy()))
+    else:
+        name, options = protocols.parse_method(spec)
+
+        def run(m: torch.Tensor) -> torch.Tensor:
+            return unwrap_single(m, BITS, method=name, workers=1, cfa=cfa, **options)
+
+    run(modulus[:, :16, :16].contiguous())  # warm-up
     base = rss_mb()
     start = time.perf_counter()
-    restored = unwrap_single(modulus, BITS, method=name, workers=1, cfa=cfa, **options)
+    restored = run(modulus)
     seconds = time.perf_counter() - start
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - base
     scored = (restored, truth) if cfa is None else (split_planes(restored), split_planes(truth))

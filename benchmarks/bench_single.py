@@ -20,9 +20,9 @@ Methods: every method :func:`torch_modulo.singleshot.unwrap_single` accepts, wit
 et al. 2002, on ``I_m 2 pi / 256``, a baseline). Every scene is first downsampled by whole-pixel area averaging
 (smallest integer factor) until its longer side is at most ``--scale`` (512).
 
-``--memory`` instead measures seconds and peak memory per megapixel on synthetic smooth 12-bit scenes of
-0.25, 1 and 4 MP (``--memory-sizes``), each method in a fresh process (peak RSS above the process's RSS after
-imports and a warm-up).
+``--memory`` instead measures seconds and peak memory per megapixel on synthetic smooth 12-bit grey scenes of
+0.25, 1 and 4 MP (``--memory-sizes``): it runs ``benchmarks/bench_memory.py --channels 1``, each method in a fresh
+process (peak RSS above the process's RSS before the call).
 
 Examples:
     python benchmarks/bench_single.py                                     # every scene, A A10 B, four methods
@@ -40,10 +40,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
 import statistics
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -56,7 +53,6 @@ from torch_modulo.singleshot import unwrap_energy, unwrap_single
 
 BITS = 8
 PERIOD = 2**BITS
-MEMORY_PEAK = 4095.0
 #: Summary groups: every scene, and each side of the split.
 GROUPS = ("all", "train", "validation")
 
@@ -240,61 +236,6 @@ def run_protocol(proto: str, scenes: list[Path], args: argparse.Namespace) -> di
     return out
 
 
-# ----------------------------------------------------------------------------------------------------------- memory
-
-
-def synthetic(mp: float, seed: int = 0) -> np.ndarray:
-    """A smooth 12-bit scene of ``mp`` megapixels (Gaussian bumps on a ramp), as (H, W) counts."""
-    side = int(round(math.sqrt(mp * 1e6)))
-    rng = np.random.default_rng(seed)
-    y, x = np.mgrid[0:side, 0:side] / side
-    img = 200 + 600 * x
-    for _ in range(6):
-        cy, cx, s, a = rng.uniform(0.1, 0.9), rng.uniform(0.1, 0.9), rng.uniform(0.05, 0.2), rng.uniform(500, 3000)
-        img += a * np.exp(-((y - cy) ** 2 + (x - cx) ** 2) / (2 * s * s))
-    return np.floor(np.clip(img, 0, MEMORY_PEAK))
-
-
-def rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
-def memory_probe(spec: str, mp: float) -> dict[str, Any]:
-    """Run in a fresh process: seconds and peak RSS above the post-import baseline."""
-    truth = torch.from_numpy(synthetic(mp))[None]
-    modulus = torch.remainder(truth, PERIOD)
-    cpu = torch.device("cpu")
-    run_method(spec, modulus[:, :16, :16].contiguous(), 1, cpu)  # warm-up: imports, pools, caches
-    base = rss_mb()
-    restored, seconds = run_method(spec, modulus, 1, cpu)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    ok = protocols.score_scene(restored, truth, BITS, MEMORY_PEAK).exact_k
-    return {"method": spec, "mp": truth.numel() / 1e6, "seconds": seconds, "peak_mb": peak - base, "exact_k": ok}
-
-
-def run_memory(methods: list[str], sizes: list[float]) -> None:
-    rows = []
-    print(f"{'method':12s} {'MP':>6s} {'s':>8s} {'s/MP':>8s} {'peak MB':>9s} {'MB/MP':>8s} {'exact-k':>8s}")
-    for mp in sizes:
-        for spec in methods:
-            cmd = [sys.executable, __file__, "--memory-probe", spec, str(mp)]
-            res = subprocess.run(cmd, capture_output=True, text=True, check=False)
-            if res.returncode != 0:
-                print(f"{spec:12s} {mp:6.2f} failed: {res.stderr.strip().splitlines()[-1:]}")
-                continue
-            row = json.loads(res.stdout.strip().splitlines()[-1])
-            rows.append(row)
-            print(
-                f"{spec:12s} {row['mp']:6.2f} {row['seconds']:8.2f} {row['seconds'] / row['mp']:8.2f} "
-                f"{row['peak_mb']:9.1f} {row['peak_mb'] / row['mp']:8.1f} {row['exact_k']:8.4f}",
-                flush=True,
-            )
-    print(json.dumps({"memory": rows}))
-
-
 # ------------------------------------------------------------------------------------------------------------- main
 
 
@@ -318,7 +259,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--energy", action="store_true", help="also report energies (always on when paper runs)")
     ap.add_argument("--memory", action="store_true", help="synthetic speed/memory scaling instead of scenes")
     ap.add_argument("--memory-sizes", nargs="+", type=float, default=[0.25, 1.0, 4.0])
-    ap.add_argument("--memory-probe", nargs=2, metavar=("METHOD", "MP"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.device.type == "cuda" and not torch.cuda.is_available():
         ap.error("--device cuda asked for, but torch.cuda.is_available() is False")
@@ -327,12 +267,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    if args.memory_probe:
-        print(json.dumps(memory_probe(args.memory_probe[0], float(args.memory_probe[1]))))
-        return
     check_methods(args.methods, args.device)
     if args.memory:
-        run_memory(args.methods, args.memory_sizes)
+        import bench_memory  # beside this script
+
+        sizes = [str(mp) for mp in args.memory_sizes]
+        bench_memory.main(["--channels", "1", "--sizes", *sizes, "--methods", *args.methods])
         return
     scenes = select_scenes(args.data, args.scenes, args.split, args.max_scenes)
     summary = {proto: run_protocol(proto, scenes, args) for proto in args.protocols}
