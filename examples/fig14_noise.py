@@ -3,7 +3,7 @@
     python examples/fig14_noise.py                 # writes examples/out/fig14_noise.png
     python examples/fig14_noise.py --quick --out /tmp/figs
     python examples/fig14_noise.py --no-single     # multi-shot only (no graph cut)
-    python examples/fig14_noise.py --method guided --out /tmp/figs  # single shot by the default method
+    python examples/fig14_noise.py --method learned --out /tmp/figs  # single shot by the default method
     python examples/fig14_noise.py --method guided:denoise=0.7 --out /tmp/figs
 
 Paper (Sec. 7, Fig. 14, real data): "As noise is more obvious in the least significant bits, it will degrade
