@@ -1,4 +1,4 @@
-"""Peak memory and time of single-shot unwrapping on large synthetic colour images.
+"""Peak memory and time of single-shot unwrapping on large synthetic images (colour by default).
 
 Every (method, size) runs in a fresh process: a smooth 12-bit scene of ``--channels`` channels (a ramp and
 Gaussian bumps, no pair steeper than half a period) is built row block by row block (so building it costs little
