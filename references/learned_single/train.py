@@ -58,13 +58,18 @@ def load_train_scenes(max_side: int) -> list[torch.Tensor]:
     return scenes
 
 
-def random_crop(scenes: list[torch.Tensor], size: int, rng: np.random.Generator) -> torch.Tensor:
-    """A (3, size, size) crop of a random scene at a random scale (1x or 2x area-averaged), flipped and turned."""
+def random_crop(
+    scenes: list[torch.Tensor], size: int, rng: np.random.Generator, scales: tuple[int, ...] = (1, 2, 2)
+) -> torch.Tensor:
+    """A (3, size, size) crop of a random scene, flipped and turned, area-averaged by a factor drawn from ``scales``.
+
+    A factor the scene is too small for falls back to the largest that fits (1 at least).
+    """
     image = scenes[rng.integers(len(scenes))]
-    factor = int(rng.choice([1, 2, 2]))
+    factor = int(rng.choice(scales))
     _, h, w = image.shape
-    if min(h, w) < size * factor:
-        factor = 1
+    while factor > 1 and min(h, w) < size * factor:
+        factor -= 1
     if min(h, w) < size:
         image = F.interpolate(image[None], scale_factor=size / min(h, w) + 0.01, mode="bilinear")[0]
         _, h, w = image.shape
@@ -127,7 +132,7 @@ def make_batch(
         if rng.random() < args.procedural:
             radiance = procedural_scene(size, rng)
         else:
-            radiance = random_crop(scenes, size, rng)
+            radiance = random_crop(scenes, size, rng, tuple(args.scales))
         counts = capture_pair(radiance, rng, args.noise).double()
         counts = counts.expand(3, -1, -1) if counts.shape[0] == 1 else counts
         if rng.random() < args.mosaic:
@@ -231,6 +236,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--noise", type=float, default=0.15, help="share of crops with sensor noise")
     ap.add_argument("--mosaic", type=float, default=0.0, help="share of crops seen as Bayer mosaics")
     ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
+    ap.add_argument(
+        "--scales", type=int, nargs="+", default=[1, 2, 2], help="area-averaging factors crops are drawn from"
+    )
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--init", type=Path, default=None, help="start from these weights (fine-tuning)")

@@ -267,6 +267,20 @@ class TestTraining:
         inner = np.s_[:, 1:-1, 1:-1]  # the borders are mirrored, not extrapolated
         assert torch.equal(train.mosaic_pair(smooth, "RGGB")[1][inner], smooth[inner])
 
+    def test_crop_scales(self) -> None:
+        """Crops are area averages of the scene by the drawn factor, or by the largest factor the scene fits."""
+        train = load_script(TRAIN_SCRIPT)
+        flat = torch.full((3, 40, 64), 7.0)
+        flat[:, :, 1::2] = 9.0  # columns alternate: a 2x2 (or 4x4) average is 8 everywhere
+        rng = np.random.default_rng(0)
+        for _ in range(8):
+            crop = train.random_crop([flat], 10, rng, scales=(4,))
+            assert crop.shape == (3, 10, 10) and torch.equal(crop, torch.full_like(crop, 8.0))
+        small = train.random_crop([flat], 16, rng, scales=(4,))  # 4 x 16 > 40 rows: falls back to 2
+        assert torch.equal(small, torch.full_like(small, 8.0))
+        native = train.random_crop([flat], 30, rng, scales=(2,))  # 2 x 30 > 40 rows: falls back to 1
+        assert set(native.unique().tolist()) == {7.0, 9.0}
+
 
 class TestTiles:
     """Large images are predicted in tiles with the receptive radius as context: the same pairs, bounded memory."""
