@@ -96,3 +96,28 @@ class TestRegionMerge:
         k[6:14, 8:16] -= 1  # as if one wrong tree pair had carried the block a period down
         k_merged = region_merge.merge_regions(m, k, logp, 8, tau=0.1)
         assert np.array_equal(k_merged - k_merged[0, 0], k_true - k_true[0, 0])
+
+
+class TestLearnedRegions:
+    def test_regions_follow_the_sure_pairs(self) -> None:
+        from research import learned_regions
+
+        cost = np.zeros((2, 4, 6))
+        cost[0][:, 2] = 5.0  # every right pair between columns 2 and 3 is unsure: two regions
+        count, labels = learned_regions.confident_regions(cost, 0.1)
+        assert count == 2 and (labels[:, :3] == labels[0, 0]).all() and (labels[:, 3:] == labels[0, 3]).all()
+        assert learned_regions.confident_regions(cost, 10.0)[0] == 1
+
+    def test_oracle_moves_large_regions_only(self) -> None:
+        from research import learned_regions
+
+        labels = np.zeros((4, 8), dtype=np.int64)
+        labels[:, 4:] = 1  # two halves
+        labels[0, 7] = 2  # and one pixel
+        true_k = np.zeros((4, 8), dtype=np.int64)
+        true_k[:, 4:] = 2
+        k = np.zeros((4, 8), dtype=np.int64)  # the right half two periods low, the lone pixel too
+        moved, count, share = learned_regions.oracle_levels(k, true_k, labels, 3, min_share=0.1)
+        expected = true_k.copy()
+        expected[0, 7] = 0  # too small to move
+        assert np.array_equal(moved, expected) and count == 2 and share == 31 / 32
