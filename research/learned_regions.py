@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from torch_modulo import protocols
-from torch_modulo.singleshot.grid import components
+from torch_modulo.singleshot.grid import components, pair_indices, pair_slices
 from torch_modulo.singleshot.learned import decode_jumps, load_model, predict_jumps
 
 BITS = 8
@@ -37,12 +37,13 @@ def confident_regions(cost: np.ndarray, tau: float) -> tuple[int, np.ndarray]:
     returns them; the last column's right pairs and the last row's down pairs are ignored.
     """
     _, h, w = cost.shape
-    ids = np.arange(h * w).reshape(h, w)
-    right = cost[0][:, :-1] <= tau
-    down = cost[1][:-1, :] <= tau
-    first = np.concatenate([ids[:, :-1][right], ids[:-1, :][down]])
-    second = np.concatenate([ids[:, 1:][right], ids[1:, :][down]])
-    count, labels = components(h * w, first, second)
+    firsts, seconds = [], []
+    for direction, offset in enumerate(((0, 1), (1, 0))):  # the pair is stored at its first (left or upper) end
+        first, second = pair_indices(h, w, offset)
+        sure = cost[direction][pair_slices(h, w, offset)[0]].ravel() <= tau
+        firsts.append(first[sure])
+        seconds.append(second[sure])
+    count, labels = components(h * w, np.concatenate(firsts), np.concatenate(seconds))
     return count, labels.reshape(h, w)
 
 
@@ -66,9 +67,9 @@ def scene_rows(
 ) -> list[tuple[float, float, float, float]]:
     """(exact-k, rolled-over right, large regions per plane, their share) of the tree, then of the oracle at each
     ``tau``."""
-    modulus = torch.remainder(truth, PERIOD)
-    planes = modulus.to(torch.int64).numpy()
-    jump, cost = predict_jumps(net, modulus.to(torch.int64), BITS)
+    modulus = torch.remainder(truth, PERIOD).to(torch.int64)
+    planes = modulus.numpy()
+    jump, cost = predict_jumps(net, modulus, BITS)
     true_k = torch.floor(truth / PERIOD).to(torch.int64).numpy()
     tree = np.stack([decode_jumps(m, j, c, BITS)[0] for m, j, c in zip(planes, jump, cost, strict=True)])
     results = [(tree, 0.0, 0.0)]
