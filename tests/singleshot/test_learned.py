@@ -16,6 +16,7 @@ from torch_modulo.cfa import interpolate_wrapped, mosaic
 from torch_modulo.singleshot import unwrap_single
 from torch_modulo.singleshot.learned import (
     MOSAIC_CUTS,
+    STRIP,
     EdgeJumpNet,
     _unflip,
     decode_edges,
@@ -309,6 +310,18 @@ class TestTiles:
         best, index = whole.max(dim=2)
         assert np.array_equal(jump, index.numpy() - 3)
         assert np.allclose(cost, -best.numpy(), atol=1e-4)
+
+    def test_strips_equal_the_whole_head(self) -> None:
+        # the head's logits are taken STRIP rows at a time; the rows below the last whole strip and the padding to a
+        # multiple of 4 must come out as the network's own forward pass gives them
+        torch.manual_seed(0)
+        net = EdgeJumpNet(width=4, max_jump=3).eval()
+        rows = 2 * STRIP + 23
+        moduli = torch.randint(0, 256, (3, rows, 50), generator=torch.Generator().manual_seed(2))
+        padded = torch.nn.functional.pad(moduli.float()[None], (0, 2, 0, 1), mode="replicate")
+        with torch.no_grad():
+            direct = torch.log_softmax(net(edge_features(padded, 8)), dim=3)[0, ..., :rows, :50]
+        assert torch.allclose(predict_edges(net, moduli, 8), direct, atol=1e-5)
 
     def test_option(self) -> None:
         modulus = torch.from_numpy(scene(48) % 256)

@@ -41,6 +41,7 @@ __all__ = [
     "BAND",
     "LEARNED_OPTIONS",
     "MOSAIC_CUTS",
+    "STRIP",
     "TILE",
     "WEIGHTS",
     "EdgeJumpNet",
@@ -135,16 +136,25 @@ class EdgeJumpNet(nn.Module):
         self.head = nn.Conv2d(w, SLOTS * 2 * (2 * self.max_jump + 1), 1)
 
     def forward(self, x: torch.Tensor, channels: int = SLOTS) -> torch.Tensor:
+        return self.logits(self.trunk(x), channels)
+
+    def trunk(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, width, H, W) full-resolution features of (B, 15, H, W) inputs: everything but the head."""
         e1 = self.enc1(x)
         e2 = self.enc2(F.avg_pool2d(e1, 2))
         e3 = self.enc3(F.avg_pool2d(e2, 2))
         for block in self.mid:
             e3 = e3 + block(e3)
         d2 = self.dec2(torch.cat([F.interpolate(e3, scale_factor=2.0, mode="nearest"), e2], dim=1))
-        d1 = self.dec1(torch.cat([F.interpolate(d2, scale_factor=2.0, mode="nearest"), e1], dim=1))
-        b, _, h, w = x.shape
+        return self.dec1(torch.cat([F.interpolate(d2, scale_factor=2.0, mode="nearest"), e1], dim=1))
+
+    def logits(self, features: torch.Tensor, channels: int = SLOTS) -> torch.Tensor:
+        """(B, channels, 2, 2J + 1, h, w) logits of any (B, width, h, w) window of :meth:`trunk`'s features (the
+        head is a 1 x 1 convolution, so a window of features gives the same window of logits)."""
+        b, _, h, w = features.shape
         n = channels * 2 * (2 * self.max_jump + 1)  # the head's outputs are channel-major: the first n
-        return F.conv2d(d1, self.head.weight[:n], self.head.bias[:n]).view(b, channels, 2, 2 * self.max_jump + 1, h, w)
+        out = F.conv2d(features, self.head.weight[:n], self.head.bias[:n])
+        return out.view(b, channels, 2, 2 * self.max_jump + 1, h, w)
 
 
 @functools.lru_cache(maxsize=4)
@@ -189,6 +199,9 @@ def _unflip(logp: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
 #: side, so memory is bounded.
 TILE = 768
 
+#: Rows of a tile whose jump logits exist at once (:func:`predict_edges`; it does not change the result).
+STRIP = 64
+
 #: Cost of a jump outside ``-J .. J`` (and the most any jump costs): ``-log`` of a negligible probability.
 _MAX_COST = 30.0
 
@@ -232,25 +245,43 @@ def _tiles(n: int, tile: int, margin: int) -> list[tuple[int, int, int, int]]:
     return out
 
 
-def _window_logp(net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool, channels: int) -> torch.Tensor:
-    """(channels, 2, 2J + 1, h, w) jump log-probabilities of one (1, 3, h, w) window of moduli."""
+def _window_logp(
+    net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool, channels: int, core: tuple[slice, slice]
+) -> Iterator[tuple[int, torch.Tensor]]:
+    """Jump log-probabilities of the ``core`` (rows, columns) of one (1, 3, h, w) window of moduli, in strips of
+    :data:`STRIP` rows: ``(first row of the strip in the core, (channels, 2, 2J + 1, rows, core width))``.
+
+    The head's logits (``2 (2J + 1)`` values per pixel and channel, the largest array of the network) exist one
+    strip at a time. With ``augment`` the four flips' log-probabilities are averaged over the whole window first.
+    """
     _, _, h, w = x.shape
     ph, pw = -h % 4, -w % 4
+    rows, cols = core
+    if not augment:
+        xp = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+        with torch.no_grad():
+            features = net.trunk(edge_features(xp, bits))
+            for r0 in range(rows.start, rows.stop, STRIP):
+                strip = features[..., r0 : min(rows.stop, r0 + STRIP), cols]
+                yield r0 - rows.start, torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
+        return
     total = None
-    for dims in ((), (-1,), (-2,), (-1, -2)) if augment else ((),):
+    for dims in ((), (-1,), (-2,), (-1, -2)):
         xf = x.flip(dims) if dims else x
         xf = F.pad(xf, (0, pw, 0, ph), mode="replicate") if ph or pw else xf
         with torch.no_grad():
             logp = torch.log_softmax(net(edge_features(xf, bits), channels).float(), dim=3)[0, :, :, :, :h, :w]
         logp = _unflip(logp, dims) if dims else logp
         total = logp if total is None else total + logp
-    return torch.log_softmax(total, dim=2) if augment else total
+    assert total is not None
+    yield 0, torch.log_softmax(total[..., rows, cols], dim=2)
 
 
 def _windows(
     net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool, tile: int
 ) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
-    """Per tile of (C, H, W) moduli (C = 1 or 3): the tile's slices and its (C, 2, 2J + 1, h, w) log-probabilities.
+    """Per tile of (C, H, W) moduli (C = 1 or 3), strip by strip: the strip's slices and its (C, 2, 2J + 1, h, w)
+    log-probabilities.
 
     A tile's window reaches the network's receptive radius beyond it (:func:`tile_margin`), so every pair of the
     tile (its last column's pair to the next column included) is predicted from the same pixels as in the whole
@@ -261,8 +292,9 @@ def _windows(
     margin = tile_margin(net)
     for y0, y1, cy0, cy1 in _tiles(h, tile, margin):
         for x0, x1, cx0, cx1 in _tiles(w, tile, margin):
-            logp = _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c)
-            yield (slice(cy0, cy1), slice(cx0, cx1)), logp[..., cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0]
+            core = (slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
+            for r, logp in _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c, core):
+                yield (slice(cy0 + r, cy0 + r + logp.shape[-2]), slice(cx0, cx1)), logp
 
 
 def predict_edges(
