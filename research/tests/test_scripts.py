@@ -121,3 +121,35 @@ class TestLearnedRegions:
         expected = true_k.copy()
         expected[0, 7] = 0  # too small to move
         assert np.array_equal(moved, expected) and count == 2 and share == 31 / 32
+
+
+class TestLearnedScales:
+    def test_long_pairs_with_true_jumps_restore_the_truth(self) -> None:
+        from research import learned_scales
+
+        truth = (np.arange(12)[:, None] * 90 + np.arange(10)[None, :] * 70).astype(np.int64)  # steps above P/2
+        m = truth % 256
+        pairs = []
+        for step in (1, 2):
+            t, mm = truth[::step, ::step], m[::step, ::step]
+            jump = np.zeros((2, *t.shape), dtype=np.int64)  # the true jumps: n = (dI - wrap(dI_m)) / 256
+            for d, (a, b) in enumerate(((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))):
+                diff = mm[b] - mm[a]
+                jump[d][a] = (t[b] - t[a] - (np.mod(diff + 128, 256) - 128)) // 256
+            cost = np.full((2, *t.shape), 2.0 if step == 1 else 1.0)
+            pairs += learned_scales.long_pairs(mm, jump, cost, step, 10)
+        k = learned_scales.decode_pairs(120, pairs).reshape(12, 10)
+        assert np.array_equal(m + 256 * k, truth - 256 * (truth[0, 0] // 256))
+
+    def test_shift_regions_follows_the_coarse_levels(self) -> None:
+        from research import learned_scales
+
+        labels = np.zeros((4, 8), dtype=np.int64)
+        labels[:, 5:] = 1
+        k = np.zeros((4, 8), dtype=np.int64)
+        coarse = np.full((4, 8), 3, dtype=np.int64)  # one constant off everywhere ...
+        coarse[:, 5:] = 5  # ... and the right region two more
+        moved = learned_scales.shift_regions(k, coarse, labels, 2, 0.01, None)
+        assert (moved[:, :5] == 0).all() and (moved[:, 5:] == 2).all()
+        kept = learned_scales.shift_regions(k, coarse, labels, 2, 0.01, np.array([True, False]))
+        assert (kept == 0).all()
