@@ -152,22 +152,31 @@ def train(args: argparse.Namespace) -> dict[str, object]:
     rng = np.random.default_rng(args.seed)
     scenes = load_train_scenes(args.scene_side)
     print(f"loaded {len(scenes)} training scenes", flush=True)
-    net = EdgeJumpNet(width=args.width, max_jump=args.max_jump, dilations=tuple(args.dilations))
+    net = EdgeJumpNet(
+        width=args.width, max_jump=args.max_jump, dilations=tuple(args.dilations), coarse=tuple(args.coarse)
+    )
     if args.init is not None:  # fine-tune: start from earlier weights (same width and max_jump)
         record = torch.load(args.init, map_location="cpu", weights_only=True)
         state = {k: v.float() for k, v in record["state"].items()}
         # Bottleneck blocks the earlier network lacks (more --dilations) start near zero: their residual adds
-        # almost nothing, so the network starts as the earlier one and the new blocks still get gradients.
+        # almost nothing, so the network starts as the earlier one and the new blocks still get gradients. A new
+        # 1/8 level (--coarse) keeps its default initialisation but its merge into the bottleneck (up4) starts
+        # near zero, for the same reason.
         new = [k for k in net.state_dict() if k not in state]
-        if any(not k.startswith("mid.") for k in new):
+        if any(not k.startswith(("mid.", "enc4.", "deep.", "up4.")) for k in new):
             raise SystemExit(f"--init {args.init} does not match this network: missing {new}")
         net.load_state_dict(state, strict=False)
         with torch.no_grad():
             for k in new:
-                net.state_dict()[k].mul_(0.01)
-        print(f"starting from {args.init}" + (f" (new near-zero blocks: {new})" if new else ""), flush=True)
+                if k.startswith(("mid.", "up4.")):
+                    net.state_dict()[k].mul_(0.01)
+        print(f"starting from {args.init}" + (f" (new: {new})" if new else ""), flush=True)
+    if args.crop % net.stride:
+        raise SystemExit(f"--crop must be a multiple of {net.stride} for this network; got {args.crop}")
     n_params = sum(p.numel() for p in net.parameters())
     print(f"parameters: {n_params}", flush=True)
+    device = torch.device(args.device)
+    net.to(device)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     steps = args.steps
     start = time.perf_counter()
@@ -181,7 +190,7 @@ def train(args: argparse.Namespace) -> dict[str, object]:
         lr = args.lr * 0.5 * (1 + math.cos(math.pi * min(step / total, 1.0)))
         for group in opt.param_groups:
             group["lr"] = lr
-        wrapped, counts = make_batch(scenes, args.batch, args.crop, rng, args)
+        wrapped, counts = (t.to(device) for t in make_batch(scenes, args.batch, args.crop, rng, args))
         target, hard = edge_targets(counts, BITS, args.max_jump)
         logits = net(edge_features(wrapped, BITS))
         loss = edge_loss(logits, target, args.hard_weight)
@@ -203,7 +212,7 @@ def train(args: argparse.Namespace) -> dict[str, object]:
                 flush=True,
             )
     minutes = (time.perf_counter() - start) / 60
-    record = {"config": net.config, "state": {k: v.detach().half() for k, v in net.state_dict().items()}}
+    record = {"config": net.config, "state": {k: v.detach().cpu().half() for k, v in net.state_dict().items()}}
     args.out.mkdir(parents=True, exist_ok=True)
     torch.save(record, args.out / "edge_jump.pt")
     summary = {
@@ -230,6 +239,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--width", type=int, default=16)
     ap.add_argument("--max-jump", type=int, default=15)
     ap.add_argument("--dilations", type=int, nargs="+", default=[1, 2, 4, 8], help="bottleneck dilations")
+    ap.add_argument(
+        "--coarse", type=int, nargs="*", default=[], help="dilations of residual blocks at 1/8 (none: no such level)"
+    )
     ap.add_argument("--lr", type=float, default=2e-3)
     ap.add_argument("--hard-weight", type=float, default=5.0)
     ap.add_argument("--procedural", type=float, default=0.3, help="share of procedural crops")
@@ -240,6 +252,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--scales", type=int, nargs="+", default=[1, 2, 2], help="area-averaging factors crops are drawn from"
     )
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--device", default="cpu", help="where the network trains (cuda on a GPU); batches are made on the CPU"
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--init", type=Path, default=None, help="start from these weights (fine-tuning)")
     ap.add_argument("--log-every", type=int, default=25)

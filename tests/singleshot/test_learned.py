@@ -13,7 +13,7 @@ import torch
 
 from torch_modulo.capture import modulo_wrap
 from torch_modulo.cfa import interpolate_wrapped, mosaic
-from torch_modulo.singleshot import unwrap_single
+from torch_modulo.singleshot import learned, unwrap_single
 from torch_modulo.singleshot.learned import (
     MOSAIC_CUTS,
     STRIP,
@@ -286,17 +286,32 @@ class TestTraining:
 class TestTiles:
     """Large images are predicted in tiles with the receptive radius as context: the same pairs, bounded memory."""
 
-    def test_margin_covers_the_receptive_field(self) -> None:
+    @pytest.mark.parametrize("dilations, coarse", [((1,), ()), ((1, 2, 4, 8), ()), ((1,), (1,)), ((1, 2), (1, 2))])
+    def test_margin_covers_the_receptive_field(self, dilations: tuple[int, ...], coarse: tuple[int, ...]) -> None:
         torch.manual_seed(0)
-        for dilations in ((1,), (1, 2, 4, 8)):
-            net = EdgeJumpNet(width=4, max_jump=2, dilations=dilations).eval()
-            x = torch.randn(1, 15, 200, 200)
+        net = EdgeJumpNet(width=4, max_jump=2, dilations=dilations, coarse=coarse).eval()
+        reach = 0
+        for at in range(200, 200 + net.stride):  # every place on the coarsest pooling grid
+            x = torch.randn(1, 15, 400, 400)
             y = x.clone()
-            y[..., 100, 100] += 10.0
+            y[..., at, at] += 10.0
             with torch.no_grad():
                 changed = (net(x) - net(y)).abs().amax(dim=(0, 1, 2, 3)) > 0
-            reach = int((changed.nonzero() - 100).abs().max())
-            assert reach < tile_margin(net) <= reach + 8
+            reach = max(reach, int((changed.nonzero() - at).abs().max()))
+        assert reach < tile_margin(net) <= reach + 2 * net.stride
+
+    def test_coarse_level(self) -> None:
+        plain = EdgeJumpNet(width=4, max_jump=2)
+        assert "coarse" not in plain.config and plain.stride == 4  # the configs of earlier weights stay as they were
+        net = EdgeJumpNet(width=4, max_jump=2, dilations=(1,), coarse=(1,)).eval()
+        assert net.config["coarse"] == (1,) and net.stride == 8
+        assert EdgeJumpNet(**net.config).config == net.config
+        g = torch.Generator().manual_seed(3)
+        moduli = torch.randint(0, 256, (1, 163, 150), generator=g)  # sides not multiples of 8: padded
+        whole = predict_edges(net, moduli, 8)
+        assert whole.shape == (1, 2, 5, 163, 150)
+        assert len(learned._tiles(150, 20, tile_margin(net), net.stride)) > 2  # really in tiles
+        assert torch.allclose(predict_edges(net, moduli, 8, tile=20), whole, atol=1e-4)
 
     def test_tiled_equals_whole(self) -> None:
         torch.manual_seed(0)

@@ -103,15 +103,18 @@ def _block(cin: int, cout: int, dilation: int = 1) -> nn.Sequential:
 class EdgeJumpNet(nn.Module):
     """A small U-Net from :func:`edge_features` to jump logits of every horizontal and vertical pair, per channel.
 
-    Full resolution, 1/2 and 1/4 with a dilated residual bottleneck (dilations ``dilations``), skip connections.
+    Full resolution, 1/2 and 1/4 with a dilated residual bottleneck (dilations ``dilations``), skip connections;
+    with ``coarse``, a residual branch at 1/8 (``8 width`` channels, dilations ``coarse``) added to the bottleneck.
 
     Args:
         width: channels at full resolution (doubled at 1/2, quadrupled at 1/4).
         max_jump: ``J``: the jumps predicted are ``-J .. J``.
         dilations: dilations of the bottleneck's residual blocks (the receptive field grows with their sum).
+        coarse: dilations of the residual blocks at 1/8 resolution (none: no such level).
 
     Shape:
-        - Input: (B, 15, H, W) features, ``H`` and ``W`` multiples of 4 (:func:`predict_edges` pads).
+        - Input: (B, 15, H, W) features, ``H`` and ``W`` multiples of :attr:`stride` (4, or 8 with ``coarse``;
+          :func:`predict_edges` pads).
         - Output: (B, 3, 2, 2J + 1, H, W) logits: channel, direction (0: to the right neighbour, 1: to the one
           below), jump ``n + J``; with ``forward(x, channels)``, those of the first ``channels`` channels alone (a
           grey image, repeated into the three slots, needs one).
@@ -122,11 +125,25 @@ class EdgeJumpNet(nn.Module):
         torch.Size([1, 3, 2, 5, 8, 8])
     """
 
-    def __init__(self, width: int = 16, max_jump: int = 15, dilations: tuple[int, ...] = (1, 2, 4, 8)) -> None:
+    def __init__(
+        self,
+        width: int = 16,
+        max_jump: int = 15,
+        dilations: tuple[int, ...] = (1, 2, 4, 8),
+        coarse: tuple[int, ...] = (),
+    ) -> None:
         super().__init__()
         w = int(width)
-        self.config = {"width": w, "max_jump": int(max_jump), "dilations": tuple(int(d) for d in dilations)}
+        self.config: dict[str, Any] = {
+            "width": w,
+            "max_jump": int(max_jump),
+            "dilations": tuple(int(d) for d in dilations),
+        }
+        if coarse:  # only then: the configs of networks without the branch stay as they were
+            self.config["coarse"] = tuple(int(d) for d in coarse)
         self.max_jump = int(max_jump)
+        #: The inputs' sides must be multiples of this (the coarsest pooling grid).
+        self.stride = 8 if coarse else 4
         self.enc1 = nn.Sequential(_block(5 * SLOTS, w), _block(w, w))
         self.enc2 = nn.Sequential(_block(w, 2 * w), _block(2 * w, 2 * w))
         self.enc3 = _block(2 * w, 4 * w)
@@ -134,6 +151,10 @@ class EdgeJumpNet(nn.Module):
         self.dec2 = nn.Sequential(_block(4 * w + 2 * w, 2 * w), _block(2 * w, 2 * w))
         self.dec1 = nn.Sequential(_block(2 * w + w, w), _block(w, w))
         self.head = nn.Conv2d(w, SLOTS * 2 * (2 * self.max_jump + 1), 1)
+        if coarse:
+            self.enc4 = _block(4 * w, 8 * w)
+            self.deep = nn.ModuleList(_block(8 * w, 8 * w, d) for d in self.config["coarse"])
+            self.up4 = nn.Conv2d(8 * w, 4 * w, 1)
 
     def forward(self, x: torch.Tensor, channels: int = SLOTS) -> torch.Tensor:
         return self.logits(self.trunk(x), channels)
@@ -145,6 +166,11 @@ class EdgeJumpNet(nn.Module):
         e3 = self.enc3(F.avg_pool2d(e2, 2))
         for block in self.mid:
             e3 = e3 + block(e3)
+        if self.stride == 8:
+            e4 = self.enc4(F.avg_pool2d(e3, 2))
+            for block in self.deep:
+                e4 = e4 + block(e4)
+            e3 = e3 + self.up4(F.interpolate(e4, scale_factor=2.0, mode="nearest"))
         d2 = self.dec2(torch.cat([F.interpolate(e3, scale_factor=2.0, mode="nearest"), e2], dim=1))
         return self.dec1(torch.cat([F.interpolate(d2, scale_factor=2.0, mode="nearest"), e1], dim=1))
 
@@ -218,26 +244,28 @@ _CONFIDENT = 0.99
 
 
 def tile_margin(net: EdgeJumpNet) -> int:
-    """The context a tile needs on every side: the network's receptive radius (``4 sum(dilations) + 18`` pixels),
-    plus the pair's second pixel, rounded up to a multiple of 4 (the pooling grid). 80 for the shipped network.
+    """The context a tile needs on every side: the network's receptive radius (``4 sum(dilations) + 18`` pixels,
+    plus ``8 sum(coarse) + 13`` with a 1/8 level), plus the pair's second pixel, rounded up to a multiple of the
+    network's stride (the pooling grid). 144 for the shipped network.
 
     Example:
         >>> tile_margin(EdgeJumpNet(width=4, dilations=(1, 2, 4, 8)))
         80
     """
-    radius = 4 * sum(net.config["dilations"]) + 18 + 1
-    return radius + (-radius % 4)
+    coarse = net.config.get("coarse", ())
+    radius = 4 * sum(net.config["dilations"]) + 18 + 1 + (8 * sum(coarse) + 13 if coarse else 0)
+    return radius + (-radius % net.stride)
 
 
-def _tiles(n: int, tile: int, margin: int) -> list[tuple[int, int, int, int]]:
+def _tiles(n: int, tile: int, margin: int, stride: int = 4) -> list[tuple[int, int, int, int]]:
     """Windows along one axis of ``n`` pixels: ``(start, stop, core_start, core_stop)``, cores of ``tile`` pixels.
 
-    One window covers everything when ``tile`` is 0 or ``n <= tile + 2 margin``; windows start at multiples of 4
-    (``tile`` is rounded down to one), so every window sees the whole-image pooling grid.
+    One window covers everything when ``tile`` is 0 or ``n <= tile + 2 margin``; windows start at multiples of
+    ``stride`` (``tile`` and ``margin`` are), so every window sees the whole-image pooling grid.
     """
     if tile <= 0 or n <= tile + 2 * margin:
         return [(0, n, 0, n)]
-    core = max(4, tile - tile % 4)
+    core = max(stride, tile - tile % stride)
     out = []
     for c0 in range(0, n, core):
         c1 = min(n, c0 + core)
@@ -255,7 +283,7 @@ def _window_logp(
     strip at a time. With ``augment`` the four flips' log-probabilities are averaged over the whole window first.
     """
     _, _, h, w = x.shape
-    ph, pw = -h % 4, -w % 4
+    ph, pw = -h % net.stride, -w % net.stride
     rows, cols = core
     if not augment:
         xp = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
@@ -290,8 +318,8 @@ def _windows(
     c, h, w = moduli.shape
     x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
     margin = tile_margin(net)
-    for y0, y1, cy0, cy1 in _tiles(h, tile, margin):
-        for x0, x1, cx0, cx1 in _tiles(w, tile, margin):
+    for y0, y1, cy0, cy1 in _tiles(h, tile, margin, net.stride):
+        for x0, x1, cx0, cx1 in _tiles(w, tile, margin, net.stride):
             core = (slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
             for r, logp in _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c, core):
                 yield (slice(cy0 + r, cy0 + r + logp.shape[-2]), slice(cx0, cx1)), logp
