@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from research import bench_cuts, common, edges, harness, single_limits
 
@@ -153,3 +154,15 @@ class TestLearnedScales:
         assert (moved[:, :5] == 0).all() and (moved[:, 5:] == 2).all()
         kept = learned_scales.shift_regions(k, coarse, labels, 2, 0.01, np.array([True, False]))
         assert (kept == 0).all()
+
+
+class TestLearnedEnsemble:
+    def test_mean_of_log_probabilities(self) -> None:
+        from research import learned_ensemble
+
+        a = torch.log_softmax(torch.randn(1, 2, 5, 3, 4, generator=torch.Generator().manual_seed(0)), dim=2)
+        assert torch.allclose(learned_ensemble.mean_logp([a, a]), a, atol=1e-6)  # agreeing runs: unchanged
+        b = a.flip(2)  # a second run that puts the same beliefs on the mirrored jumps
+        mean = learned_ensemble.mean_logp([a, b])
+        assert torch.allclose(mean.exp().sum(dim=2), torch.ones(1, 2, 3, 4), atol=1e-6)
+        assert torch.allclose(mean, mean.flip(2), atol=1e-6)  # the product of experts is symmetric
