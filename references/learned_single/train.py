@@ -59,13 +59,19 @@ def load_train_scenes(max_side: int) -> list[torch.Tensor]:
 
 
 def random_crop(
-    scenes: list[torch.Tensor], size: int, rng: np.random.Generator, scales: tuple[int, ...] = (1, 2, 2)
-) -> torch.Tensor:
-    """A (3, size, size) crop of a random scene, flipped and turned, area-averaged by a factor drawn from ``scales``.
+    scenes: list[torch.Tensor],
+    size: int,
+    rng: np.random.Generator,
+    scales: tuple[int, ...] = (1, 2, 2),
+    with_index: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, int]:
+    """A (3, size, size) crop of a random scene, flipped and turned, area-averaged by a factor drawn from ``scales``
+    (with ``with_index``, also the scene's index).
 
     A factor the scene is too small for falls back to the largest that fits (1 at least).
     """
-    image = scenes[rng.integers(len(scenes))]
+    index = int(rng.integers(len(scenes)))
+    image = scenes[index]
     factor = int(rng.choice(scales))
     _, h, w = image.shape
     while factor > 1 and min(h, w) < size * factor:
@@ -80,21 +86,40 @@ def random_crop(
         crop = F.avg_pool2d(crop[None], factor)[0]
     if rng.random() < 0.5:
         crop = crop.flip(-1)
-    return torch.rot90(crop, int(rng.integers(4)), (-2, -1)).contiguous()
+    crop = torch.rot90(crop, int(rng.integers(4)), (-2, -1)).contiguous()
+    return (crop, index) if with_index else crop
 
 
-def capture_pair(radiance: torch.Tensor, rng: np.random.Generator, noise: float) -> torch.Tensor:
+def exposure_references(image: torch.Tensor) -> dict[bool, dict[float, float]]:
+    """The percentiles :func:`capture_pair` may expose a crop by, taken over a whole (3, H, W) scene: ``{grey:
+    {q: value}}`` for its luminance (``grey``) and its RGB values, ``q`` in 99.9, 99 and 100."""
+    out = {}
+    for grey, x in ((True, luminance(image[None])[0]), (False, image)):
+        values = x.double().clamp_min(0.0).numpy()
+        out[grey] = {q: float(np.percentile(values, q)) for q in (99.9, 99.0, 100.0)}
+    return out
+
+
+def capture_pair(
+    radiance: torch.Tensor,
+    rng: np.random.Generator,
+    noise: float,
+    scene: dict[bool, dict[float, float]] | None = None,
+) -> torch.Tensor:
     """True counts (C, H, W) of one crop: grey (luminance) or RGB, brightest region 2 to 20 rollovers.
 
     The exposure maps a high percentile of the crop (99.9th, 99th or the maximum) to a peak of ``256 w`` counts,
-    ``w`` log-uniform in [2, 20]; counts saturate at that peak. With probability ``noise``, shot noise (1 to 16
-    electrons per count) and as much read noise are added before the floor.
+    ``w`` log-uniform in [2, 20]; counts saturate at that peak. With ``scene`` (:func:`exposure_references` of the
+    scene the crop comes from), the percentile is the whole scene's, as a camera exposes a whole frame: the crop
+    itself may then hold anything from no rollover to the saturated peak. With probability ``noise``, shot noise (1
+    to 16 electrons per count) and as much read noise are added before the floor.
     """
-    x = luminance(radiance[None])[0] if rng.random() < 0.5 else radiance
+    grey = rng.random() < 0.5
+    x = luminance(radiance[None])[0] if grey else radiance
     x = x.double().clamp_min(0.0)
     peak = PERIOD * math.exp(rng.uniform(math.log(2.0), math.log(20.0)))
     q = float(rng.choice([99.9, 99.0, 100.0]))
-    ref = float(np.percentile(x.numpy(), q)) or float(x.max()) or 1.0
+    ref = (scene[grey][q] if scene else 0.0) or float(np.percentile(x.numpy(), q)) or float(x.max()) or 1.0
     exposure = peak / ref
     if rng.random() < noise:
         e = x * exposure
@@ -120,20 +145,29 @@ def mosaic_pair(counts: torch.Tensor, cfa: str) -> tuple[torch.Tensor, torch.Ten
 
 
 def make_batch(
-    scenes: list[torch.Tensor], batch: int, size: int, rng: np.random.Generator, args: argparse.Namespace
+    scenes: list[torch.Tensor],
+    batch: int,
+    size: int,
+    rng: np.random.Generator,
+    args: argparse.Namespace,
+    references: list[dict[bool, dict[float, float]]] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(batch, 3, size, size) wrapped inputs and the true counts they come from.
 
-    Grey samples are repeated into the three channels. A share ``args.mosaic`` of the samples is mosaicked with a
-    random Bayer pattern first (:func:`mosaic_pair`).
+    Grey samples are repeated into the three channels. A share ``args.scene_exposure`` of the scene crops is exposed
+    by their whole scene's percentile (``references``: :func:`exposure_references` of every scene). A share
+    ``args.mosaic`` of the samples is mosaicked with a random Bayer pattern first (:func:`mosaic_pair`).
     """
     wrapped, truth = [], []
     for _ in range(batch):
+        scene = None
         if rng.random() < args.procedural:
             radiance = procedural_scene(size, rng)
         else:
-            radiance = random_crop(scenes, size, rng, tuple(args.scales))
-        counts = capture_pair(radiance, rng, args.noise).double()
+            radiance, index = random_crop(scenes, size, rng, tuple(args.scales), with_index=True)
+            if args.scene_exposure > 0 and rng.random() < args.scene_exposure:  # no draw when off: runs reproduce
+                scene = references[index]
+        counts = capture_pair(radiance, rng, args.noise, scene).double()
         counts = counts.expand(3, -1, -1) if counts.shape[0] == 1 else counts
         if rng.random() < args.mosaic:
             guide, counts = mosaic_pair(counts, str(rng.choice(CFA_PATTERNS)))
@@ -152,6 +186,7 @@ def train(args: argparse.Namespace) -> dict[str, object]:
     rng = np.random.default_rng(args.seed)
     scenes = load_train_scenes(args.scene_side)
     print(f"loaded {len(scenes)} training scenes", flush=True)
+    references = [exposure_references(s) for s in scenes] if args.scene_exposure > 0 else []
     net = EdgeJumpNet(
         width=args.width, max_jump=args.max_jump, dilations=tuple(args.dilations), coarse=tuple(args.coarse)
     )
@@ -190,7 +225,7 @@ def train(args: argparse.Namespace) -> dict[str, object]:
         lr = args.lr * 0.5 * (1 + math.cos(math.pi * min(step / total, 1.0)))
         for group in opt.param_groups:
             group["lr"] = lr
-        wrapped, counts = (t.to(device) for t in make_batch(scenes, args.batch, args.crop, rng, args))
+        wrapped, counts = (t.to(device) for t in make_batch(scenes, args.batch, args.crop, rng, args, references))
         target, hard = edge_targets(counts, BITS, args.max_jump)
         logits = net(edge_features(wrapped, BITS))
         loss = edge_loss(logits, target, args.hard_weight)
@@ -247,6 +282,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--procedural", type=float, default=0.3, help="share of procedural crops")
     ap.add_argument("--noise", type=float, default=0.15, help="share of crops with sensor noise")
     ap.add_argument("--mosaic", type=float, default=0.0, help="share of crops seen as Bayer mosaics")
+    ap.add_argument(
+        "--scene-exposure", type=float, default=0.0, help="share of scene crops exposed by the whole scene's percentile"
+    )
     ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
     ap.add_argument(
         "--scales", type=int, nargs="+", default=[1, 2, 2], help="area-averaging factors crops are drawn from"

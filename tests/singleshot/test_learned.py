@@ -281,6 +281,22 @@ class TestTraining:
         assert torch.equal(small, torch.full_like(small, 8.0))
         native = train.random_crop([flat], 30, rng, scales=(2,))  # 2 x 30 > 40 rows: falls back to 1
         assert set(native.unique().tolist()) == {7.0, 9.0}
+        crop, index = train.random_crop([flat, flat], 10, rng, with_index=True)
+        assert crop.shape == (3, 10, 10) and index in (0, 1)
+
+    def test_scene_exposure(self) -> None:
+        """Exposed by the whole scene, a dark crop of a scene with a bright lamp does not roll over; exposed by
+        itself, it always rolls over at least twice."""
+        train = load_script(TRAIN_SCRIPT)
+        scene = torch.full((3, 32, 32), 0.1)
+        scene[:, :4, :4] = 100.0  # the lamp: the scene's top percentiles
+        references = train.exposure_references(scene)
+        assert references[True][100.0] == pytest.approx(100.0) and references[False][99.0] == pytest.approx(100.0)
+        dark = scene[:, 16:, 16:]
+        rng = np.random.default_rng(0)
+        for _ in range(6):
+            assert float(train.capture_pair(dark, rng, 0.0, references).max()) < 256  # at most 20 periods x 0.1 / 100
+            assert float(train.capture_pair(dark, rng, 0.0).max()) >= 512
 
 
 class TestTiles:
