@@ -281,8 +281,10 @@ class TestTraining:
         assert torch.equal(small, torch.full_like(small, 8.0))
         native = train.random_crop([flat], 30, rng, scales=(2,))  # 2 x 30 > 40 rows: falls back to 1
         assert set(native.unique().tolist()) == {7.0, 9.0}
-        crop, index = train.random_crop([flat, flat], 10, rng, with_index=True)
-        assert crop.shape == (3, 10, 10) and index in (0, 1)
+        scenes = [torch.full((3, 40, 64), 1.0), torch.full((3, 40, 64), 2.0)]
+        for _ in range(6):
+            crop, index = train.random_crop(scenes, 10, rng, with_index=True)
+            assert crop.shape == (3, 10, 10) and torch.equal(crop, torch.full_like(crop, index + 1.0))
 
     def test_scene_exposure(self) -> None:
         """Exposed by the whole scene, a dark crop of a scene with a bright lamp does not roll over; exposed by
@@ -341,6 +343,22 @@ class TestTiles:
         best, index = whole.max(dim=2)
         assert np.array_equal(jump, index.numpy() - 3)
         assert np.allclose(cost, -best.numpy(), atol=1e-4)
+
+    def test_tiled_equals_whole_with_flips(self) -> None:
+        # sides that are not multiples of the pooling grid: every flipped window must still see the image's grid
+        torch.manual_seed(0)
+        for coarse in ((), (1,)):
+            net = EdgeJumpNet(width=4, max_jump=3, dilations=(1,), coarse=coarse).eval()
+            moduli = torch.randint(0, 256, (3, 163, 150), generator=torch.Generator().manual_seed(4))
+            assert len(learned._tiles(150, 20, tile_margin(net), net.stride)) > 2  # really in tiles
+            whole = predict_edges(net, moduli, 8, augment=True)
+            assert torch.allclose(predict_edges(net, moduli, 8, augment=True, tile=20), whole, atol=1e-4)
+
+    def test_no_grad_outside(self) -> None:
+        net = EdgeJumpNet(width=4, max_jump=2).eval()
+        pieces = learned._windows(net, torch.randint(0, 256, (1, 40, 30)), 8, False, 0)
+        next(pieces)
+        assert torch.is_grad_enabled()  # the caller's mode between the pieces
 
     def test_strips_equal_the_whole_head(self) -> None:
         # the head's logits are taken STRIP rows at a time; the rows below the last whole strip and the padding to a

@@ -261,7 +261,8 @@ def _tiles(n: int, tile: int, margin: int, stride: int = 4) -> list[tuple[int, i
     """Windows along one axis of ``n`` pixels: ``(start, stop, core_start, core_stop)``, cores of ``tile`` pixels.
 
     One window covers everything when ``tile`` is 0 or ``n <= tile + 2 margin``; windows start at multiples of
-    ``stride`` (``tile`` and ``margin`` are), so every window sees the whole-image pooling grid.
+    ``stride`` (``tile`` is rounded down to one, ``margin`` is one), so every window sees the whole-image pooling
+    grid.
     """
     if tile <= 0 or n <= tile + 2 * margin:
         return [(0, n, 0, n)]
@@ -276,30 +277,29 @@ def _tiles(n: int, tile: int, margin: int, stride: int = 4) -> list[tuple[int, i
 def _window_logp(
     net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool, channels: int, core: tuple[slice, slice]
 ) -> Iterator[tuple[int, torch.Tensor]]:
-    """Jump log-probabilities of the ``core`` (rows, columns) of one (1, 3, h, w) window of moduli, in strips of
-    :data:`STRIP` rows: ``(first row of the strip in the core, (channels, 2, 2J + 1, rows, core width))``.
+    """Jump log-probabilities of the ``core`` (rows, columns) of one (1, 3, h, w) window of moduli (``h`` and ``w``
+    multiples of the network's stride): ``(first row of the piece in the core, (channels, 2, 2J + 1, rows, core
+    width))``.
 
-    The head's logits (``2 (2J + 1)`` values per pixel and channel, the largest array of the network) exist one
-    strip at a time. With ``augment`` the four flips' log-probabilities are averaged over the whole window first.
+    Without ``augment``, the pieces are strips of :data:`STRIP` rows, so the head's logits (``2 (2J + 1)`` values
+    per pixel and channel, the largest array of the network) exist one strip at a time. With ``augment``, the four
+    flips' log-probabilities of the whole window are averaged and the core comes back in one piece.
     """
-    _, _, h, w = x.shape
-    ph, pw = -h % net.stride, -w % net.stride
     rows, cols = core
     if not augment:
-        xp = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
         with torch.no_grad():
-            features = net.trunk(edge_features(xp, bits))
-            for r0 in range(rows.start, rows.stop, STRIP):
+            features = net.trunk(edge_features(x, bits))
+        for r0 in range(rows.start, rows.stop, STRIP):
+            with torch.no_grad():
                 strip = features[..., r0 : min(rows.stop, r0 + STRIP), cols]
-                yield r0 - rows.start, torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
+                logp = torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
+            yield r0 - rows.start, logp
         return
     total = None
     for dims in ((), (-1,), (-2,), (-1, -2)):
-        xf = x.flip(dims) if dims else x
-        xf = F.pad(xf, (0, pw, 0, ph), mode="replicate") if ph or pw else xf
         with torch.no_grad():
-            logp = torch.log_softmax(net(edge_features(xf, bits), channels).float(), dim=3)[0, :, :, :, :h, :w]
-        logp = _unflip(logp, dims) if dims else logp
+            logp = torch.log_softmax(net(edge_features(x.flip(dims) if dims else x, bits), channels).float(), dim=3)
+        logp = _unflip(logp[0], dims) if dims else logp[0]
         total = logp if total is None else total + logp
     assert total is not None
     yield 0, torch.log_softmax(total[..., rows, cols], dim=2)
@@ -308,18 +308,22 @@ def _window_logp(
 def _windows(
     net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool, tile: int
 ) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
-    """Per tile of (C, H, W) moduli (C = 1 or 3), strip by strip: the strip's slices and its (C, 2, 2J + 1, h, w)
-    log-probabilities.
+    """Per tile of (C, H, W) moduli (C = 1 or 3), piece by piece (:func:`_window_logp`): the piece's slices and its
+    (C, 2, 2J + 1, h, w) log-probabilities.
 
-    A tile's window reaches the network's receptive radius beyond it (:func:`tile_margin`), so every pair of the
-    tile (its last column's pair to the next column included) is predicted from the same pixels as in the whole
-    image.
+    The image is padded (replicated) to a multiple of the network's stride once, so every window, flipped or not,
+    sees the whole image's pooling grid; a tile's window reaches the network's receptive radius beyond it
+    (:func:`tile_margin`), so every pair of the tile (its last column's pair to the next column included) is
+    predicted from the same pixels as in the whole image.
     """
     c, h, w = moduli.shape
     x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
+    ph, pw = -h % net.stride, -w % net.stride
+    x = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
     margin = tile_margin(net)
-    for y0, y1, cy0, cy1 in _tiles(h, tile, margin, net.stride):
-        for x0, x1, cx0, cx1 in _tiles(w, tile, margin, net.stride):
+    for y0, y1, cy0, cy1 in _tiles(h + ph, tile, margin, net.stride):
+        for x0, x1, cx0, cx1 in _tiles(w + pw, tile, margin, net.stride):
+            cy1, cx1 = min(cy1, h), min(cx1, w)  # the padding's own pairs are not returned
             core = (slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
             for r, logp in _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c, core):
                 yield (slice(cy0 + r, cy0 + r + logp.shape[-2]), slice(cx0, cx1)), logp
