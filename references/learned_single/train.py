@@ -200,6 +200,9 @@ def train(args: argparse.Namespace) -> dict[str, object]:
         new = [k for k in net.state_dict() if k not in state]
         if any(not k.startswith(("mid.", "enc4.", "deep.", "up4.")) for k in new):
             raise SystemExit(f"--init {args.init} does not match this network: missing {new}")
+        dropped = [k for k in state if k not in net.state_dict()]
+        if dropped:  # e.g. a 1/8 level the command line left out (--coarse)
+            raise SystemExit(f"--init {args.init} has parameters this network lacks: {dropped}")
         net.load_state_dict(state, strict=False)
         with torch.no_grad():
             for k in new:
