@@ -128,7 +128,7 @@ class TestLearnedScales:
     def test_long_pairs_with_true_jumps_restore_the_truth(self) -> None:
         from research import learned_scales
 
-        truth = (np.arange(12)[:, None] * 90 + np.arange(10)[None, :] * 70).astype(np.int64)  # steps above P/2
+        truth = (np.arange(12)[:, None] * 90 + np.arange(10)[None, :] * 70).astype(np.int64)  # long steps > P/2
         m = truth % 256
         pairs = []
         for step in (1, 2):
@@ -141,6 +141,12 @@ class TestLearnedScales:
             pairs += learned_scales.long_pairs(mm, jump, cost, step, 10)
         k = learned_scales.decode_pairs(120, pairs).reshape(12, 10)
         assert np.array_equal(m + 256 * k, truth - 256 * (truth[0, 0] // 256))
+        # the same pair twice: the cheaper one is kept, whichever end comes first
+        wrong = (np.array([1]), np.array([0]), np.array([5]), np.array([0.5]))  # k_0 - k_1 = 5
+        right = (np.array([0]), np.array([1]), np.array([2]), np.array([0.1]))  # k_1 - k_0 = 2
+        assert learned_scales.decode_pairs(2, [wrong]).tolist() == [0, -5]
+        for order in ([wrong, right], [right, wrong]):
+            assert learned_scales.decode_pairs(2, order).tolist() == [0, 2]
 
     def test_shift_regions_follows_the_coarse_levels(self) -> None:
         from research import learned_scales
@@ -166,3 +172,6 @@ class TestLearnedEnsemble:
         mean = learned_ensemble.mean_logp([a, b])
         assert torch.allclose(mean.exp().sum(dim=2), torch.ones(1, 2, 3, 4), atol=1e-6)
         assert torch.allclose(mean, mean.flip(2), atol=1e-6)  # the product of experts is symmetric
+        c = torch.log_softmax(torch.randn(1, 2, 5, 3, 4, generator=torch.Generator().manual_seed(1)), dim=2)
+        product = torch.log_softmax((a + c) / 2, dim=2)  # a product of experts, not a mixture of probabilities
+        assert torch.allclose(learned_ensemble.mean_logp([a, c]), product, atol=1e-6)
