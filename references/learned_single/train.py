@@ -26,6 +26,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -178,6 +179,23 @@ def make_batch(
     return torch.stack(wrapped).float(), torch.stack(truth).float()
 
 
+class Batches(torch.utils.data.IterableDataset):
+    """Endless :func:`make_batch` batches for a DataLoader with worker processes (``--workers``): each worker draws
+    from its own generator, seeded by ``(seed, worker id)``, so a run is repeatable for a given number of workers."""
+
+    def __init__(
+        self, scenes: list[torch.Tensor], args: argparse.Namespace, references: list[dict[bool, dict[float, float]]]
+    ) -> None:
+        self.scenes, self.args, self.references = scenes, args, references
+
+    def __iter__(self) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        info = torch.utils.data.get_worker_info()
+        torch.set_num_threads(1)  # many workers, one core each
+        rng = np.random.default_rng([self.args.seed, 0 if info is None else info.id + 1])
+        while True:
+            yield make_batch(self.scenes, self.args.batch, self.args.crop, rng, self.args, self.references)
+
+
 def train(args: argparse.Namespace) -> dict[str, object]:
     if args.mosaic > 0 and args.crop % 2:
         raise SystemExit(f"--mosaic needs an even --crop (whole 2 x 2 cells); got {args.crop}")
@@ -219,6 +237,12 @@ def train(args: argparse.Namespace) -> dict[str, object]:
     steps = args.steps
     start = time.perf_counter()
     step, smooth, hard_acc = 0, None, None
+    loader = None
+    if args.workers:  # batches made in worker processes while the network trains (for a GPU; a different stream)
+        data = torch.utils.data.DataLoader(
+            Batches(scenes, args, references), batch_size=None, num_workers=args.workers, prefetch_factor=4
+        )
+        loader = iter(data)
     while steps == 0 or step < steps:
         if steps == 0 and step == args.probe_steps:
             per_step = (time.perf_counter() - start) / step
@@ -228,7 +252,8 @@ def train(args: argparse.Namespace) -> dict[str, object]:
         lr = args.lr * 0.5 * (1 + math.cos(math.pi * min(step / total, 1.0)))
         for group in opt.param_groups:
             group["lr"] = lr
-        wrapped, counts = (t.to(device) for t in make_batch(scenes, args.batch, args.crop, rng, args, references))
+        batch = next(loader) if loader is not None else make_batch(scenes, args.batch, args.crop, rng, args, references)
+        wrapped, counts = (t.to(device) for t in batch)
         target, hard = edge_targets(counts, BITS, args.max_jump)
         logits = net(edge_features(wrapped, BITS))
         loss = edge_loss(logits, target, args.hard_weight)
@@ -293,6 +318,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--scales", type=int, nargs="+", default=[1, 2, 2], help="area-averaging factors crops are drawn from"
     )
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=0, help="processes making batches (0: in the training loop)")
     ap.add_argument(
         "--device", default="cpu", help="where the network trains (cuda on a GPU); batches are made on the CPU"
     )

@@ -286,6 +286,24 @@ class TestTraining:
             crop, index = train.random_crop(scenes, 10, rng, with_index=True)
             assert crop.shape == (3, 10, 10) and torch.equal(crop, torch.full_like(crop, index + 1.0))
 
+    def test_batches_in_workers(self, tmp_path: Path) -> None:
+        """``--workers``: batches made in worker processes, repeatable, and a whole (tiny) training run with them."""
+        train = load_script(TRAIN_SCRIPT)
+        ramp = torch.linspace(0.0, 1.0, 48).repeat(3, 48, 1) ** 4  # a bright corner
+        args = train.parse_args(["--batch", "2", "--crop", "16", "--seed", "3"])
+        first = next(iter(train.Batches([ramp], args, [])))
+        assert first[0].shape == first[1].shape == (2, 3, 16, 16)
+        assert torch.equal(first[0], torch.remainder(first[1], 256))  # wrapped inputs of the true counts
+        loader = torch.utils.data.DataLoader(train.Batches([ramp], args, []), batch_size=None, num_workers=2)
+        a, b = [batch for batch, _ in zip(loader, range(2), strict=False)]
+        again = next(iter(torch.utils.data.DataLoader(train.Batches([ramp], args, []), batch_size=None, num_workers=2)))
+        assert torch.equal(a[1], again[1]) and not torch.equal(a[1], b[1])  # per-worker seeds: repeatable, distinct
+        train.load_train_scenes = lambda side: [ramp]
+        out = tmp_path / "run"
+        argv = ["--out", str(out), "--steps", "2", "--crop", "16", "--batch", "1", "--width", "4", "--threads", "1"]
+        summary = train.train(train.parse_args([*argv, "--workers", "2", "--log-every", "1"]))
+        assert summary["steps"] == 2 and load_model(out / "edge_jump.pt").config["width"] == 4
+
     def test_scene_exposure(self) -> None:
         """Exposed by the whole scene, a dark crop of a scene with a bright lamp does not roll over; exposed by
         itself, it always rolls over at least twice."""
