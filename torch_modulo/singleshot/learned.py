@@ -274,6 +274,7 @@ def _tiles(n: int, tile: int, margin: int, stride: int = 4) -> list[tuple[int, i
     return out
 
 
+@torch.no_grad()  # on a generator: only while it runs, so the caller's mode holds between the pieces
 def _window_logp(
     net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool, channels: int, core: tuple[slice, slice]
 ) -> Iterator[tuple[int, torch.Tensor]]:
@@ -287,18 +288,14 @@ def _window_logp(
     """
     rows, cols = core
     if not augment:
-        with torch.no_grad():
-            features = net.trunk(edge_features(x, bits))
+        features = net.trunk(edge_features(x, bits))
         for r0 in range(rows.start, rows.stop, STRIP):
-            with torch.no_grad():
-                strip = features[..., r0 : min(rows.stop, r0 + STRIP), cols]
-                logp = torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
-            yield r0 - rows.start, logp
+            strip = features[..., r0 : min(rows.stop, r0 + STRIP), cols]
+            yield r0 - rows.start, torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
         return
     total = None
     for dims in ((), (-1,), (-2,), (-1, -2)):
-        with torch.no_grad():
-            logp = torch.log_softmax(net(edge_features(x.flip(dims) if dims else x, bits), channels).float(), dim=3)
+        logp = torch.log_softmax(net(edge_features(x.flip(dims) if dims else x, bits), channels).float(), dim=3)
         logp = _unflip(logp[0], dims) if dims else logp[0]
         total = logp if total is None else total + logp
     assert total is not None
