@@ -9,7 +9,7 @@ the methods of :data:`METHODS`:
   the input's device, the tree on the CPU.
 - ``"guided"``: reliability-guided path following (Herraez et al. 2002) without a graph cut, the channels of a
   colour image on one shared tree, so that a step that is steep in one channel is avoided in all
-  (:mod:`torch_modulo.singleshot.pathfollow`); about three times faster than ``"learned"`` on the CPU. Under strong
+  (:mod:`torch_modulo.singleshot.pathfollow`); about 2.5 times faster than ``"learned"`` on the CPU. Under strong
   noise in the low bits pass ``denoise=0.7`` (or use ``"fast"``).
 - ``"fast"``: the paper's energy (Eqs. 3-5, :mod:`torch_modulo.singleshot.energy`) and binary graph-cut moves
   (:mod:`torch_modulo.singleshot.graphcut`) on a cheaper schedule: start from path following when the wrapped
