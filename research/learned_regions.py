@@ -52,14 +52,20 @@ def oracle_levels(
 ) -> tuple[np.ndarray, int, float]:
     """``k`` with every region of at least ``min_share`` of the pixels shifted to its most common ``true_k - k``
     (ties: the smallest shift); the number of such regions and the share of the pixels they hold."""
-    d = (true_k - k).ravel()
+    common, sizes = region_modes(true_k - k, labels, count)
+    large = sizes >= min_share * labels.size
+    shift = np.where(large, common, 0)
+    return k + shift[labels], int(large.sum()), float(sizes[large].sum() / labels.size)
+
+
+def region_modes(d: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The most common integer value of ``d`` in each of ``count`` regions (ties: the smallest) and each region's
+    size in pixels."""
+    d = d.ravel()
     lo = int(d.min())
     votes = np.zeros((count, int(d.max()) - lo + 1), dtype=np.int64)
     np.add.at(votes, (labels.ravel(), d - lo), 1)
-    sizes = votes.sum(axis=1)
-    large = sizes >= min_share * labels.size
-    shift = np.where(large, votes.argmax(axis=1) + lo, 0)
-    return k + shift[labels], int(large.sum()), float(sizes[large].sum() / labels.size)
+    return votes.argmax(axis=1) + lo, votes.sum(axis=1)
 
 
 def scene_rows(

@@ -24,7 +24,7 @@ import argparse
 import numpy as np
 import torch
 
-from research.learned_regions import confident_regions
+from research.learned_regions import confident_regions, region_modes
 from torch_modulo import protocols
 from torch_modulo.singleshot.grid import path_to_root, spanning_tree
 from torch_modulo.singleshot.learned import decode_jumps, load_model, predict_jumps
@@ -76,12 +76,7 @@ def shift_regions(
 ) -> np.ndarray:
     """``k`` with every region of at least ``min_share`` of the plane moved to its most common ``coarse - k``,
     relative to the largest region's; with ``gate`` (per region, bool), only the regions it allows."""
-    d = (coarse - k).ravel()
-    lo = int(d.min())
-    votes = np.zeros((count, int(d.max()) - lo + 1), dtype=np.int64)
-    np.add.at(votes, (labels.ravel(), d - lo), 1)
-    sizes = votes.sum(axis=1)
-    shift = votes.argmax(axis=1) + lo
+    shift, sizes = region_modes(coarse - k, labels, count)
     shift -= shift[sizes.argmax()]
     move = sizes >= min_share * labels.size
     if gate is not None:
