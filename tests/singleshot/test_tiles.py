@@ -185,9 +185,9 @@ class TestGuidedInBlocks:
         calls: list[int] = []
         inner = pathfollow._forest_graph
 
-        def spy(difficulty: np.ndarray, tile_pixels: int):  # noqa: ANN202
+        def spy(pair_weights, h: int, w: int, tile_pixels: int):  # noqa: ANN001, ANN202
             calls.append(tile_pixels)
-            return inner(difficulty, tile_pixels)
+            return inner(pair_weights, h, w, tile_pixels)
 
         monkeypatch.setattr(pathfollow, "_forest_graph", spy)
         truth = smooth_counts(150, 140, seed=4)[0]
@@ -203,7 +203,8 @@ class TestGuidedInBlocks:
         difficulty = np.random.default_rng(h * w).integers(0, 4, (h, w)).astype(np.float64)
         right, down = pathfollow._pair_weights(difficulty)
         whole = pathfollow._tree_parents(pathfollow._pair_graph(right, down))
-        blocks = pathfollow._tree_parents(pathfollow._forest_graph(difficulty, 4096))
+        weights = lambda r0, r1: pathfollow._pair_weights(difficulty[r0:r1])  # noqa: E731
+        blocks = pathfollow._tree_parents(pathfollow._forest_graph(weights, h, w, 4096))
         assert blocks.dtype == np.int32
         assert np.count_nonzero(blocks != np.arange(h * w)) == h * w - 1  # one tree, rooted at pixel 0
         assert tile_tree_weight(blocks, right, down) == pytest.approx(tile_tree_weight(whole, right, down), rel=1e-12)

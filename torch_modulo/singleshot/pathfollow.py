@@ -29,6 +29,8 @@ import numpy as np
 from torch_modulo.singleshot.grid import path_to_root, wrapped_difference
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from scipy.sparse import csr_matrix
 
 __all__ = [
@@ -149,25 +151,28 @@ def _pair_graph(weight_right: np.ndarray, weight_down: np.ndarray) -> csr_matrix
     return csr_matrix((data, indices, indptr), shape=(n, n))
 
 
-def _forest_graph(difficulty: np.ndarray, tile_pixels: int) -> csr_matrix:
+def _forest_graph(
+    pair_weights: Callable[[int, int], tuple[np.ndarray, np.ndarray]], h: int, w: int, tile_pixels: int
+) -> csr_matrix:
     """The pairs that can be in a minimum spanning tree, found in blocks of rows of at most ``tile_pixels`` pixels.
 
-    Each block keeps the pairs of its own minimum spanning forest (a pair left out of it is the heaviest on a
-    cycle inside the block, so some minimum spanning tree of the whole image does without it), plus every pair
-    across the seam to the next block: about one pair per pixel instead of two, and only one block's pair graph
-    at a time. Returned as a CSR matrix like :func:`_pair_graph`'s (rows in order, columns sorted in a row).
+    ``pair_weights(r0, r1)`` gives the weights (> 0) of the right (r1 - r0, W - 1) and down (r1 - r0 - 1, W) pairs
+    among rows ``r0 .. r1 - 1`` of the (H, W) grid. Each block keeps the pairs of its own minimum spanning forest
+    (a pair left out of it is the heaviest on a cycle inside the block, so some minimum spanning tree of the whole
+    image does without it), plus every pair across the seam to the next block: about one pair per pixel instead
+    of two, and only one block's pair graph at a time. Returned as a CSR matrix like :func:`_pair_graph`'s (rows
+    in order, columns sorted in a row).
     """
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import minimum_spanning_tree
 
-    h, w = difficulty.shape
     n = h * w
     rows = max(1, tile_pixels // w)
     indptr = np.zeros(n + 1, dtype=np.int32)
     parts: list[tuple[np.ndarray, np.ndarray]] = []  # (columns, weights) of every block, in row order
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)
-        right, down = _pair_weights(difficulty[r0 : min(h, r1 + 1)])  # one more row: the pairs across the seam
+        right, down = pair_weights(r0, min(h, r1 + 1))  # one more row: the pairs across the seam
         forest = minimum_spanning_tree(_pair_graph(right[: r1 - r0], down[: r1 - r0 - 1]), overwrite=True)
         first = np.repeat(np.arange(r0 * w, r1 * w, dtype=np.int32), np.diff(forest.indptr))
         second = forest.indices + np.int32(r0 * w)
@@ -204,7 +209,7 @@ def _reliability_graph(difficulty: np.ndarray, tile_pixels: int = 0) -> csr_matr
     """
     h, w = difficulty.shape
     if tile_pixels and h * w > tile_pixels:
-        return _forest_graph(difficulty, tile_pixels)
+        return _forest_graph(lambda r0, r1: _pair_weights(difficulty[r0:r1]), h, w, tile_pixels)
     right, down = _pair_weights(difficulty)
     return _pair_graph(right, down)
 
