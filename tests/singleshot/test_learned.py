@@ -146,6 +146,19 @@ class TestDecoders:
         assert np.array_equal(restored - restored.min(), truth - truth.min())
         assert confidence.shape == m.shape and float(confidence.min()) > 0.99
 
+    @pytest.mark.parametrize(("h", "w"), [(61, 45), (1, 700), (700, 1)])
+    def test_tree_from_blocks_is_the_whole_tree(self, monkeypatch: pytest.MonkeyPatch, h: int, w: int) -> None:
+        # Distinct costs: one minimum spanning tree, whether built whole or from blocks of rows of 256 pixels.
+        rng = np.random.default_rng(h * w)
+        m = rng.integers(0, 256, (h, w))
+        jump = rng.integers(-2, 3, (2, h, w)).astype(np.int16)
+        cost = rng.random((2, h, w)).astype(np.float32) * rng.choice([0.001, 3.0], (2, h, w))
+        whole = decode_jumps(m, jump, cost, 8)
+        monkeypatch.setattr(learned, "TREE_PIXELS", 256)
+        blocks = decode_jumps(m, jump, cost, 8)
+        assert np.array_equal(blocks[0], whole[0]) and np.array_equal(blocks[1], whole[1])
+        assert blocks[0].dtype == np.int64 and blocks[1].dtype == np.float64
+
     def test_cut_undoes_a_wrong_region(self) -> None:
         truth = scene(32)
         m = (truth % 256).astype(np.int64)

@@ -242,6 +242,11 @@ BAND = 2
 #: A pair this likely (``p >= 0.99``) joins the reference region of :func:`decode_jumps`' confidence.
 _CONFIDENT = 0.99
 
+#: :func:`decode_jumps` builds the spanning tree of a plane of more pixels than this from blocks of rows of at most
+#: this many (as ``"guided"``'s ``tile_pixels``): a minimum spanning tree of the same pairs in less memory, which
+#: may differ from the whole-image tree where pairs cost the same.
+TREE_PIXELS = 2**22
+
 
 def tile_margin(net: EdgeJumpNet) -> int:
     """The context a tile needs on every side: the network's receptive radius (``4 sum(dilations) + 18`` pixels,
@@ -437,9 +442,9 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
         >>> k.tolist(), confidence.round(2).tolist()
         ([[0, 1, 1]], [[1.0, 0.61, 0.61]])
     """
-    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
-    from torch_modulo.singleshot.pathfollow import _pair_graph, _tree_parents
+    from torch_modulo.singleshot.pathfollow import _forest_graph, _pair_graph
 
     m = np.asarray(modulus, dtype=np.int64)
     h, w = m.shape
@@ -447,21 +452,37 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
     if n <= 1:
         return np.zeros((h, w), dtype=np.int64), np.ones((h, w))
     cost = np.asarray(cost)
-    # scipy reads a stored 0 as "no edge": every cost is shifted a little (the tree is the same).
-    graph = _pair_graph(cost[0][:, :-1].astype(np.float64) + 1e-9, cost[1][:-1, :].astype(np.float64) + 1e-9)
-    confident = graph.copy()
-    confident.data = (confident.data <= -np.log(_CONFIDENT) + 1e-9).astype(np.int8)
-    confident.eliminate_zeros()
-    _, labels = connected_components(confident, directed=False)
-    del confident
+
+    def pair_weights(r0: int, r1: int) -> tuple[np.ndarray, np.ndarray]:
+        # scipy reads a stored 0 as "no edge": every cost is shifted a little (the tree is the same).
+        right = np.add(cost[0, r0:r1, :-1], 1e-9, dtype=np.float64)
+        return right, np.add(cost[1, r0 : r1 - 1, :], 1e-9, dtype=np.float64)
+
+    if n > TREE_PIXELS:  # the pairs of the blocks' own spanning forests, which hold a tree of the whole image
+        graph = _forest_graph(pair_weights, h, w, TREE_PIXELS)
+    else:
+        graph = _pair_graph(*pair_weights(0, h))
+    tree = minimum_spanning_tree(graph, overwrite=True)
+    del graph
+    # The reference region, the largest one joined by sure pairs, is joined by the tree's own sure pairs: a minimum
+    # spanning tree's path between two pixels has the smallest largest cost of all paths.
+    sure = tree.copy()
+    sure.data = (sure.data <= -np.log(_CONFIDENT) + 1e-9).astype(np.int8)
+    sure.eliminate_zeros()
+    _, labels = connected_components(sure, directed=False)
+    del sure
     root = int(np.argmax(labels == np.bincount(labels).argmax()))
     del labels
-    parent = _tree_parents(graph, root).astype(np.int64)
-    del graph
-    # Every pixel's step to its parent, k_child - k_parent, and the cost of the pair between them, by chunks.
+    _, parent = breadth_first_order(tree, root, directed=False, return_predecessors=True)  # int32
+    del tree
+    orphans = np.flatnonzero(parent < 0)  # the root, and pixels no pair reaches
+    parent[orphans] = orphans
+    # Every pixel's step to its parent, k_child - k_parent, and the cost of the pair between them, by chunks. A
+    # step is at most J + 1 periods, so int32 holds every sum along a path unless the image is huge.
     flat_m, flat_jump, flat_cost = m.ravel(), np.asarray(jump).reshape(2, n), cost.reshape(2, n)
     period, half = 1 << bits, 1 << (bits - 1)
-    k_step = np.zeros(n, dtype=np.int64)
+    bound = (int(np.abs(flat_jump).max(initial=0)) + 1) * n
+    k_step = np.zeros(n, dtype=np.int32 if bound < 2**31 else np.int64)
     c_step = np.zeros(n, dtype=np.float32)
     for s in range(0, n, 1 << 20):
         child = np.arange(s, min(n, s + (1 << 20)), dtype=np.int64)
@@ -473,10 +494,11 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
         step = (np.mod(d + half, period) - half + period * jump_c - d) // period  # k_second - k_first
         k_step[child] = np.where(child == first, -step, step)
         c_step[child] = flat_cost[direction, first]
-    is_root = parent == np.arange(n)
-    k_step[is_root] = 0
-    c_step[is_root] = 0.0
-    k = path_to_root(parent, k_step)
+    k_step[orphans] = 0
+    c_step[orphans] = 0.0
+    del orphans
+    k = path_to_root(parent, k_step).astype(np.int64)
+    del k_step
     confidence = np.exp(-path_to_root(parent, c_step, np.maximum).astype(np.float64))
     return k.reshape(h, w), confidence.reshape(h, w)
 
@@ -626,20 +648,20 @@ def learned_k(
         True
     """
     net = load_model() if net is None else net
-    device = next(net.parameters()).device
-    x = torch.as_tensor(moduli).to(device=device, dtype=torch.int64)
-    planes = x.cpu().numpy()
-    if planes.shape[0] == 0:  # no channels: nothing to predict
-        return np.zeros(planes.shape, dtype=np.int64), np.ones(planes.shape)
+    x = torch.as_tensor(moduli)
+    if x.shape[0] == 0:  # no channels: nothing to predict
+        return np.zeros(x.shape, dtype=np.int64), np.ones(x.shape)
+    k = np.empty(x.shape, dtype=np.int64)
+    confidence = np.empty(x.shape)
     band = BAND if max_cuts else 0
-    jump, cost = predict_jumps(net, x, bits, augment, tile, band)
-    best = cost[:, :, band] if band else cost
-    out = [decode_jumps(m, j, c, bits) for m, j, c in zip(planes, jump, best, strict=True)]
-    k = np.stack([kk for kk, _ in out])
-    if max_cuts:
-        first = jump.astype(np.int64) - band
-        k = np.stack([refine_band(*a, bits, max_cuts) for a in zip(planes, k, cost, first, strict=True)])
-    return k, np.stack([c for _, c in out])
+    device = next(net.parameters()).device
+    jump, cost = predict_jumps(net, x.to(device=device, dtype=torch.float32), bits, augment, tile, band)
+    for i in range(x.shape[0]):  # one channel's int64 moduli at a time
+        plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
+        k[i], confidence[i] = decode_jumps(plane, jump[i], cost[i, :, band] if band else cost[i], bits)
+        if max_cuts:
+            k[i] = refine_band(plane, k[i], cost[i], jump[i].astype(np.int64) - band, bits, max_cuts)
+    return k, confidence
 
 
 def learned_confidence(
@@ -773,10 +795,15 @@ def solve_learned_tensor(moduli: torch.Tensor, spec: Any) -> tuple[torch.Tensor,
 
     The network runs where the moduli are (a GPU when they are there); the integer decoding runs on the CPU.
     """
-    if not len(moduli):
-        return torch.zeros(moduli.shape, dtype=torch.int64), torch.ones(moduli.shape, dtype=torch.float64)
-    ks, confidences = zip(*(_learned_ks(image, spec) for image in moduli), strict=True)
-    return torch.from_numpy(np.stack(ks)), torch.from_numpy(np.stack(confidences).astype(np.float64))
+    if len(moduli) == 1:  # no copy
+        k, confidence = _learned_ks(moduli[0], spec)
+        return torch.from_numpy(k)[None], torch.from_numpy(confidence)[None]
+    k = torch.zeros(moduli.shape, dtype=torch.int64)
+    confidence = torch.ones(moduli.shape, dtype=torch.float64)
+    for i, image in enumerate(moduli):  # filled image by image: no list of the batch's arrays, no stacked copy
+        ki, ci = _learned_ks(image, spec)
+        k[i], confidence[i] = torch.from_numpy(ki), torch.from_numpy(ci)
+    return k, confidence
 
 
 # ------------------------------------------------------------------------------------------------------- training

@@ -331,9 +331,11 @@ def solve_on_device(moduli: torch.Tensor, spec: SolverSpec) -> list[tuple[np.nda
     start = time.perf_counter()
     h, w = moduli.shape[-2:]
     k, confidence = REGISTRY[spec.method].solve_tensor(moduli.detach(), spec)
-    k = k.to("cpu").numpy().reshape(-1, h, w)
-    planes = moduli.detach().to("cpu", torch.float64).numpy().astype(np.int64).reshape(-1, h, w)
-    out = _anchor_and_report(planes, planes + spec.params.period * k, [MoveStats() for _ in planes], spec, start)
+    solved = k.to("cpu", torch.int64).numpy().reshape(-1, h, w)  # turned into the counts in place
+    planes = moduli.detach().to("cpu", torch.int64).numpy().reshape(-1, h, w)
+    solved *= spec.params.period
+    solved += planes
+    out = _anchor_and_report(planes, solved, [MoveStats() for _ in planes], spec, start)
     maps = [None] * len(out) if confidence is None else confidence.to("cpu", torch.float64).numpy().reshape(-1, h, w)
     for (_, info), plane in zip(out, maps, strict=True):
         info["energies"] = [info["energy"]]
