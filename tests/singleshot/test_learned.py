@@ -236,6 +236,16 @@ class TestDecoders:
         torch.testing.assert_close(one, three[:, :1])
         assert torch.equal(predict_edges(net, grey, 8), torch.log_softmax(one, dim=3)[0])
 
+    def test_decode_of_rows_is_the_whole_trunk_there(self) -> None:
+        torch.manual_seed(0)
+        net = EdgeJumpNet(width=4, dilations=(1, 2))
+        x = edge_features(torch.from_numpy(np.stack([scene(24, s) for s in range(3)]) % 256)[None].float(), 8)
+        with torch.no_grad():
+            whole = net.trunk(x)
+            e1, d2 = net.encode(x)
+            for start, stop in [(0, 5), (3, 11), (7, 24), (23, 24), (0, 24)]:
+                torch.testing.assert_close(net.decode(e1, d2, start, stop), whole[..., start:stop, :])
+
     def test_predict_edges_pads_odd_sizes(self) -> None:
         net = EdgeJumpNet(width=4, max_jump=2)
         logp = predict_edges(net, torch.zeros(3, 13, 7), 8)

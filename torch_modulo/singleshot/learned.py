@@ -161,6 +161,11 @@ class EdgeJumpNet(nn.Module):
 
     def trunk(self, x: torch.Tensor) -> torch.Tensor:
         """(B, width, H, W) full-resolution features of (B, 15, H, W) inputs: everything but the head."""
+        return self.decode(*self.encode(x))
+
+    def encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """What :meth:`decode` needs: the (B, width, H, W) first features and the (B, 2 width, H / 2, W / 2) ones
+        of the half-resolution decoder."""
         e1 = self.enc1(x)
         e2 = self.enc2(F.avg_pool2d(e1, 2))
         e3 = self.enc3(F.avg_pool2d(e2, 2))
@@ -171,8 +176,21 @@ class EdgeJumpNet(nn.Module):
             for block in self.deep:
                 e4 = e4 + block(e4)
             e3 = e3 + self.up4(F.interpolate(e4, scale_factor=2.0, mode="nearest"))
-        d2 = self.dec2(torch.cat([F.interpolate(e3, scale_factor=2.0, mode="nearest"), e2], dim=1))
-        return self.dec1(torch.cat([F.interpolate(d2, scale_factor=2.0, mode="nearest"), e1], dim=1))
+        return e1, self.dec2(torch.cat([F.interpolate(e3, scale_factor=2.0, mode="nearest"), e2], dim=1))
+
+    def decode(self, e1: torch.Tensor, d2: torch.Tensor, start: int = 0, stop: int | None = None) -> torch.Tensor:
+        """The full-resolution features of rows ``start .. stop - 1`` (default: all) from :meth:`encode`'s output.
+
+        The last stage's two 3 x 3 convolutions see two rows beyond the range on each side, so a range gives the
+        same features as the whole image, and the full-resolution input of those convolutions (three times the
+        features' size) exists for the range alone.
+        """
+        h = e1.shape[-2]
+        stop = h if stop is None else stop
+        a, b = max(0, start - 2), min(h, stop + 2)
+        up = F.interpolate(d2[..., a // 2 : (b + 1) // 2, :], scale_factor=2.0, mode="nearest")
+        up = up[..., a - 2 * (a // 2) : b - 2 * (a // 2), :]
+        return self.dec1(torch.cat([up, e1[..., a:b, :]], dim=1))[..., start - a : stop - a, :]
 
     def logits(self, features: torch.Tensor, channels: int = SLOTS) -> torch.Tensor:
         """(B, channels, 2, 2J + 1, h, w) logits of any (B, width, h, w) window of :meth:`trunk`'s features (the
@@ -225,7 +243,8 @@ def _unflip(logp: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
 #: side, so memory is bounded.
 TILE = 768
 
-#: Rows of a tile whose jump logits exist at once (:func:`predict_edges`; it does not change the result).
+#: Rows of a tile whose jump logits, and the input of the network's last full-resolution stage, exist at once
+#: (:func:`predict_edges`; it does not change the result).
 STRIP = 64
 
 #: Cost of a jump outside ``-J .. J`` (and the most any jump costs): ``-log`` of a negligible probability.
@@ -288,14 +307,15 @@ def _window_logp(
     width))``.
 
     Without ``augment``, the pieces are strips of :data:`STRIP` rows, so the head's logits (``2 (2J + 1)`` values
-    per pixel and channel, the largest array of the network) exist one strip at a time. With ``augment``, the four
+    per pixel and channel, the largest array of the network) and the last stage's input (:meth:`EdgeJumpNet.decode`)
+    exist one strip at a time. With ``augment``, the four
     flips' log-probabilities of the whole window are averaged and the core comes back in one piece.
     """
     rows, cols = core
     if not augment:
-        features = net.trunk(edge_features(x, bits))
+        e1, d2 = net.encode(edge_features(x, bits))
         for r0 in range(rows.start, rows.stop, STRIP):
-            strip = features[..., r0 : min(rows.stop, r0 + STRIP), cols]
+            strip = net.decode(e1, d2, r0, min(rows.stop, r0 + STRIP))[..., cols]
             yield r0 - rows.start, torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
         return
     total = None
