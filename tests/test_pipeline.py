@@ -192,6 +192,26 @@ class TestJobs:
         )
         assert "warnings" not in info and read_image(tmp_path / "r.png").shape == (3, 6, 8)
 
+    def test_simulate_keeps_what_else_the_output_folder_holds(self, tmp_path: Path) -> None:
+        radiance = torch.exp2(torch.linspace(0, 12, 48)).view(1, 6, 8)
+        source = _write(tmp_path / "in" / "scene.exr", radiance)
+        out = tmp_path / "out" / "scene"
+        (out / "notes").mkdir(parents=True)
+        (out / "notes" / "thesis.txt").write_text("mine")
+        (out / "mine.exr").write_bytes(b"not a frame")
+        options = {"bits": 8, "noise": None, "seed": 0, "scale": "auto", "format": "exr", "truth": True}
+        task = Task("scene.exr", str(source), (str(out),))
+        simulate_job(task, {**options, "exposures": [1.0, 64.0, 4096.0]})
+        first = {p.name for p in out.iterdir()}
+        assert {"notes", "mine.exr", "frames.json", "radiance.exr"} <= first and len(first) == 7
+        simulate_job(task, {**options, "exposures": [1.0, 64.0], "truth": False})  # a smaller stack replaces it
+        assert (out / "notes" / "thesis.txt").read_text() == "mine"
+        assert (out / "mine.exr").read_bytes() == b"not a frame"
+        assert {p.name for p in out.iterdir()} == {"notes", "mine.exr", "frames.json"} | {
+            p.name for p in out.glob("frame_*")
+        }
+        assert len(list(out.glob("frame_*"))) == 2 and FileSensor(out).read().exposures.tolist() == [1.0, 64.0]
+
     def test_colour_sensor_jobs(self, tmp_path: Path) -> None:
         from torch_modulo.cfa import demosaic, mosaic
 

@@ -329,9 +329,10 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     mosaics (1, H, W) with the pattern in the stack's metadata, and the truth stays RGB. A scene that is not RGB is
     refused; an odd height or width loses its last row or column (noted in the report).
     """
-    from torch_modulo.batch import atomic_output_dir
     from torch_modulo.io import write_image
     from torch_modulo.sensors import FrameStack, SimulatedModuloSensor, write_frames
+    from torch_modulo.sensors._swap import replace_folder
+    from torch_modulo.sensors.files import stack_files
 
     bits = int(options["bits"])
     nonfinite = options.get("nonfinite", "replace")
@@ -369,7 +370,8 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     }
     dtype = torch.float32 if bits <= 24 else torch.float64
     stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind, cfa=stack.cfa)
-    with atomic_output_dir(task.outputs[0]) as folder:
+
+    def build(folder: Path) -> None:
         write_frames(stack, folder, format=options["format"])
         if options["truth"]:
             write_image(
@@ -377,6 +379,10 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
                 radiance.float(),
                 {"source": task.name, "radiance_scale": scale, "unit": "counts per unit exposure"},
             )
+
+    # Swapped in whole; a previous stack's files (and truth) are replaced, anything else in the folder is kept.
+    final = Path(task.outputs[0])
+    replace_folder(final, build, stack_files(final) | {TRUTH_FILE})
     info: dict[str, Any] = {
         "shape": list(image.shape),
         "radiance_scale": scale,

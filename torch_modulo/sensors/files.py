@@ -588,12 +588,13 @@ def write_frames(
                 manifest["frames"].append({"file": name, "batch": b, "index": m, "exposure": taus[b][m]})
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, allow_nan=True))
 
-    replace_folder(folder, build, _stack_files(folder))
+    replace_folder(folder, build, stack_files(folder))
     return folder / MANIFEST
 
 
-def _stack_files(folder: Path) -> set[str]:
-    """Names in ``folder`` that belong to the stack its manifest describes (the manifest and its frames)."""
+def stack_files(folder: Path) -> set[str]:
+    """Names in ``folder`` that belong to the stack its manifest describes (the manifest and its frames): what
+    writing a new stack there replaces (other entries are kept)."""
     names = {MANIFEST}
     try:
         entries = json.loads((folder / MANIFEST).read_text()).get("frames", [])
