@@ -695,6 +695,25 @@ def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.Argume
     return parser
 
 
+def _report_clash(report: Path, source: Path, tasks: Sequence[Any]) -> str | None:
+    """Why ``--report`` may not be written where it points (an input, inside the input folder, an output or inside
+    one, an existing folder), or None."""
+    from torch_modulo.batch.tasks import inside
+
+    path = report.expanduser().resolve()
+    if path.is_dir():
+        return f"--report {report} is a folder; give a file name"
+    if inside(path, source):
+        return f"--report {report} is the input or inside the input folder {source}; inputs are never written"
+    for task in tasks:
+        if path == Path(task.source).resolve():
+            return f"--report {report} is the input {task.source}; inputs are never written"
+        for output in task.outputs:
+            if inside(path, Path(output).resolve()):
+                return f"--report {report} would overwrite the output {output}; choose another file"
+    return None
+
+
 def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     from torch_modulo import pipeline
     from torch_modulo.batch import BatchError, check_folders, distributed_env, require_ray, run_batch
@@ -708,8 +727,6 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
             require_ray()
     except BatchError as error:
         sub.error(str(error))
-    if args.report is not None and source.is_dir() and source in Path(args.report).resolve().parents:
-        sub.error(f"--report {args.report} is inside the input folder {source}; inputs are never written")
     options = _OPTIONS[args.command](args, sub)
     single = getattr(args, "single", False)
     try:
@@ -719,6 +736,8 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
     except OSError as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 1
+    if args.report is not None and (clash := _report_clash(Path(args.report), source, tasks)):
+        sub.error(clash)
     if not tasks:
         print(f"{prog}: error: no {wanted} found in {source}", file=sys.stderr)
         return 1
