@@ -239,6 +239,28 @@ class TestUnwrap:
         )
         assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["nobits.png", "ramp.png"]
 
+    def test_single_shot_checks_the_metadata(self, tmp_path: Path) -> None:
+        (tmp_path / "in").mkdir()
+        modulus = torch.remainder(torch.floor(torch.linspace(0, 900, 24)).view(1, 1, 24).expand(1, 4, 24), 256)
+        bad = {"neg": {"bits": 8, "exposure": -2}, "nan": {"bits": 8, "exposure": float("nan")}, "zero": {"bits": 8}}
+        bad |= {"inf": {"bits": 8, "exposure": float("inf")}, "frac": {"bits": 8.7}, "bool": {"bits": True}}
+        bad["zero"]["exposure"] = 0
+        for name, meta in bad.items():
+            write_image(tmp_path / "in" / f"{name}.exr", modulus, meta)
+        write_image(tmp_path / "in" / "good.exr", modulus, {"bits": 8.0, "exposure_time": 4})
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single") == 1
+        report = _report(tmp_path / "out", "unwrap")
+        assert _names(report["done"]) == ["good.exr"]
+        errors = {e["input"]: e["error"] for e in report["failed"]}
+        assert sorted(errors) == sorted(f"{name}.exr" for name in bad)
+        for name in ("neg", "nan", "inf", "zero"):
+            assert "exposure from the metadata of" in errors[f"{name}.exr"], errors[f"{name}.exr"]
+        for name in ("frac", "bool"):
+            assert "bits from the metadata of" in errors[f"{name}.exr"], errors[f"{name}.exr"]
+        restored = read_image(tmp_path / "out" / "good.exr", dtype=torch.float64)
+        expected = torch.floor(torch.linspace(0, 900, 24, dtype=torch.float64)).view(1, 1, 24).expand(1, 4, 24)
+        torch.testing.assert_close(restored * 4, expected)
+
     def test_single_shot_confidence(self, tmp_path: Path) -> None:
         from torch_modulo.singleshot import unwrap_confidence
 

@@ -488,13 +488,19 @@ def _single_frame(
         exposure = float(stack.exposure_matrix()[0, 0])
         cfa = frame_cfa(options.get("cfa"), stack.cfa, task.source, image.shape)
         return image, stack.bits, exposure, _truth(task.source), cfa
+    from torch_modulo.sensors.files import _BITS_KEYS, _EXPOSURE_KEYS, _bits_value, _first, _positive
+
     image, meta = read_image(task.source, with_metadata=True)
+    where = f"the metadata of {task.source}"  # read as FileSensor reads a frame's: checked, never coerced
     bits = options["bits"]
     if bits is None:
-        bits = meta.get("bits", meta.get("bit_depth"))
-        if bits is None:
+        if _first(meta, _BITS_KEYS) is None:
             raise ValueError(f"no bit depth in the metadata of {task.source}: pass --bits")
-    exposure = options["exposure"] or meta.get("exposure") or 1.0
+        bits = _bits_value(_first(meta, _BITS_KEYS), where)
+    exposure = options["exposure"]
+    if exposure is None:
+        stored = _first(meta, _EXPOSURE_KEYS)
+        exposure = 1.0 if stored is None else _positive(stored, "exposure", where)
     cfa = frame_cfa(options.get("cfa"), meta.get("cfa"), task.source, image.shape)
     return image, int(bits), float(exposure), None, cfa
 
