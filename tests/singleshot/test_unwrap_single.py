@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -48,6 +49,16 @@ class TestUnwrapSingle:
         out = unwrap_single(truth % 256)
         assert out.shape == truth.shape
         assert torch.equal(out, truth)
+
+    @pytest.mark.parametrize(("small", "peak"), [(torch.float16, 2048), (torch.bfloat16, 256)])
+    def test_warns_where_the_dtype_cannot_hold_the_counts(self, small: torch.dtype, peak: int) -> None:
+        exact = torch.arange(0.0, peak + 1).reshape(1, -1)[:, :: peak // 64].repeat(4, 1)  # up to ``peak`` counts
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert torch.equal(unwrap_single((exact % 128).to(small), 7, method="guided").double(), exact.double())
+        beyond = torch.arange(0.0, 2 * peak, peak / 64).reshape(1, -1).repeat(4, 1)
+        with pytest.warns(UserWarning, match=rf"beyond what {small} holds exactly \({peak}\)"):
+            unwrap_single((beyond % 128).to(small), 7, method="guided")
 
     @pytest.mark.parametrize("kind", ["ramp", "bumps", "steps", "mixed"])
     @pytest.mark.parametrize("method", ["paper", "fast", "guided"])

@@ -131,7 +131,7 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     for plane, (r, _) in zip(restored, results, strict=True):
         plane.copy_(torch.from_numpy(r.astype(np.float64)))
     peak = max((float(r.max()) for r, _ in results if r.size), default=0.0)
-    limit = 2 ** (MAX_BITS.get(modulus.dtype, 53) + 1)
+    limit = 2 ** MAX_BITS.get(modulus.dtype, 53)  # every integer up to it, not all of those above
     if peak > limit:
         warnings.warn(
             f"restored counts reach {peak:.0f}, beyond what {modulus.dtype} holds exactly ({limit}); "
