@@ -92,3 +92,26 @@ def test_every_png_shows_something_of_its_own(tmp_path: Path) -> None:
     assert meta["bits"] == 8 and meta["exposure"] == 1.0 and float(modulus.max()) <= 255
     restored = io.read_image(tmp_path / "out" / "single_shot.exr")
     assert torch.equal(unwrap_single(modulus[None], 8)[0], restored)
+
+
+def test_demo_at_other_bit_depths_writes_a_frame_that_holds_them(tmp_path: Path) -> None:
+    for bits, name in ((12, "modulus.png"), (20, "modulus.exr")):
+        out = tmp_path / str(bits)
+        scene = _scene(tmp_path / "scene.exr")
+        summary = run_demo(out, scene, bits=bits, method="guided", workers=1, log=lambda _: None)
+        frame, meta = io.read_image(out / name, with_metadata=True, dtype=torch.float64)
+        assert str(out / name) in summary["files"] and meta["bits"] == bits
+        assert float(frame.max()) < 2**bits and torch.equal(frame, torch.floor(frame))
+        assert float(frame.max()) > 255  # the frame keeps the bits above 8
+
+
+def test_demo_scales_a_mostly_black_scene_by_its_maximum_and_refuses_a_black_one(tmp_path: Path, capsys) -> None:
+    image = torch.zeros(3, 40, 96)
+    image[:, 10:14, 20:30] = 5.0  # 0.1% of the pixels or fewer are lit: the 99.9th percentile is 0
+    image[:, 12, 25] = 7.0
+    io.write_image(tmp_path / "dark.exr", image)
+    summary = run_demo(tmp_path / "out", tmp_path / "dark.exr", method="guided", workers=1, log=lambda _: None)
+    assert summary["multi_shot"]["exact_k"] == 1.0
+    io.write_image(tmp_path / "black.exr", torch.zeros(3, 8, 8))
+    assert main(["demo", "--out", str(tmp_path / "out2"), "--scene", str(tmp_path / "black.exr")]) == 1
+    assert "is black" in capsys.readouterr().err

@@ -2,8 +2,9 @@
 
 ``torch-modulo demo`` runs :func:`run_demo` on the embedded CC0 scene (``torch_modulo/assets/apartment.exr``):
 
-1. Scale the radiance so that the 99.9th percentile of luminance reads 4095 counts at exposure 1 (a 12-bit scene,
-   as in the paper's single-shot experiments), and capture it with an 8-bit modulo and an 8-bit intensity sensor.
+1. Scale the radiance so that the 99.9th percentile of luminance (the maximum, where that percentile is 0) reads
+   4095 counts at exposure 1 (a 12-bit scene, as in the paper's single-shot experiments), and capture it with an
+   8-bit modulo and an 8-bit intensity sensor.
 2. Single shot: unwrap the one modulus image (by default with ``unwrap_single``'s default method, ``"learned"``;
    ``method="guided"`` for path following, ``"fast"`` or ``"paper"`` for the paper's graph cut, Eqs. 3-5).
 3. Multi shot: three modulo captures (neighbouring ratio 64, the shortest without rollover), unwrapped by rollover
@@ -13,8 +14,9 @@
 
 Files: ``single_shot.exr``, ``multi_shot.exr`` and ``intensity_merge.exr`` (radiance); ``modulus.png``, the 8-bit
 modulus image itself with its bit depth and exposure in its metadata (already a display image, and a camera frame
-that ``torch-modulo unwrap --single`` reads); ``<name>_tonemapped.png`` for the truth, the intensity image (its
-counts gamma-encoded) and the three recovered radiance maps; ``comparison.png``; ``summary.json``.
+that ``torch-modulo unwrap --single`` reads; a 16-bit PNG for 9 to 16 bits, ``modulus.exr`` above);
+``<name>_tonemapped.png`` for the truth, the intensity image (its counts gamma-encoded) and the three recovered
+radiance maps; ``comparison.png``; ``summary.json``.
 """
 
 from __future__ import annotations
@@ -114,6 +116,8 @@ def _multi_shot(
     """Three modulo exposures (the shortest without rollover) vs three clipped ones: scores and both results."""
     base = (2**bits - 1) / float(radiance.max())
     taus = [base, base * ratio, base * ratio * ratio]
+    if 2**bits * ratio * ratio > 2**24:  # the longest exposure's counts pass what float32 holds exactly
+        radiance = radiance.double()
     moduli = torch.stack([capture_modulo(radiance, t, bits) for t in taus], dim=1)
     frames = torch.stack([capture_intensity(radiance, t, bits) for t in taus], dim=1)
     start = time.perf_counter()
@@ -166,8 +170,11 @@ def _write_outputs(
     ):
         io.write_image(out / name, image, metadata=metadata)
         written.append(out / name)
-    io.write_image(out / "modulus.png", modulus[0], metadata=metadata, dtype="uint8")
-    written.append(out / "modulus.png")
+    # The camera frame in the narrowest file that holds it exactly: 8-bit or 16-bit PNG, or a float32 EXR.
+    frame = out / ("modulus.png" if bits <= 16 else "modulus.exr")
+    sample = None if bits > 16 else "uint8" if bits <= 8 else "uint16"
+    io.write_image(frame, modulus[0], metadata=metadata, dtype=sample)
+    written.append(frame)
     for name, image in display.items():
         if name == "modulus":  # the modulus is its own display image: modulus.png holds it
             continue
@@ -232,7 +239,12 @@ def run_demo(
     if replaced:
         log(f"scene {path.name}: replaced {replaced} NaN or infinite values (NaN and -Inf by 0, +Inf by the maximum)")
     luma = torch.einsum("chw,c->hw", hdr, torch.tensor(REC709_LUMA, dtype=hdr.dtype))
-    radiance = (hdr * (SCENE_PEAK / float(torch.quantile(luma.flatten(), 0.999)))).unsqueeze(0)  # (1, 3, H, W)
+    reference = float(torch.quantile(luma.flatten(), 0.999))
+    if not reference > 0:  # most of the scene is black: its brightest pixel reads the peak instead
+        reference = float(luma.max())
+        if not reference > 0:
+            raise ValueError(f"scene {path} is black (maximum luminance {reference}): there is nothing to capture")
+    radiance = (hdr * (SCENE_PEAK / reference)).unsqueeze(0)  # (1, 3, H, W)
     truth = torch.floor(radiance)
     log(f"scene {path.name}: {tuple(hdr.shape)}, {float(truth.max()):.0f} counts at the brightest pixel")
 
