@@ -393,6 +393,13 @@ def check_image_shape(x: torch.Tensor, name: str, min_dims: int = 2, max_dims: i
     return x
 
 
+def check_nonempty_image(x: torch.Tensor, name: str) -> torch.Tensor:
+    """Raise ``ValueError`` if ``x``'s images have no pixels (height or width 0); an empty batch is fine."""
+    if x.shape[-2] == 0 or x.shape[-1] == 0:
+        raise ValueError(f"{name} must not be an empty image; got shape {tuple(x.shape)}")
+    return x
+
+
 def exposure_tensor(
     exposure: float | Sequence[float] | torch.Tensor,
     like: torch.Tensor,

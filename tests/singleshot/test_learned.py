@@ -462,6 +462,12 @@ class TestConfidence:
         expected = mosaic(learned_confidence(guide), "RGGB")
         assert torch.equal(mosaic_info.confidence, expected.reshape(batch[0, :1].shape))
 
+    def test_learned_confidence_of_empty_inputs(self) -> None:
+        with pytest.raises(ValueError, match=r"empty image; got shape \(1, 3, 0, 4\)"):
+            learned_confidence(torch.zeros(1, 3, 0, 4))
+        for shape in ((1, 0, 4, 4), (0, 3, 4, 4)):  # no channels, no images: nothing to be unsure of
+            assert learned_confidence(torch.zeros(shape)).shape == shape
+
     def test_learned_confidence_is_the_decoders(self) -> None:
         truth = np.stack([scene(40, s) for s in range(3)])
         modulus = torch.from_numpy(truth % 256)

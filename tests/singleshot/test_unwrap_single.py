@@ -224,6 +224,7 @@ class TestUnwrapSingle:
             (torch.tensor([[0.0, 2.5]]), {}, ValueError, "2.5"),
             (torch.zeros(0, 5), {}, ValueError, r"\(0, 5\)"),
             (torch.zeros(3, 0, 5), {}, ValueError, r"\(3, 0, 5\)"),
+            (torch.zeros(1, 1, 0, 0), {"cfa": "RGGB"}, ValueError, r"empty image; got shape \(1, 1, 0, 0\)"),
             (torch.zeros(5), {}, ValueError, r"\(5,\)"),
             (torch.zeros(1, 1, 1, 4, 4), {}, ValueError, r"\(1, 1, 1, 4, 4\)"),
             (torch.zeros(4, 4, dtype=torch.int64), {}, TypeError, "int64"),

@@ -49,6 +49,7 @@ from torch_modulo._checks import (
     check_floating,
     check_image_shape,
     check_modulus,
+    check_nonempty_image,
     check_tensor,
 )
 from torch_modulo.cfa import check_cfa, interpolate_wrapped, mosaic
@@ -112,9 +113,8 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     check_floating(modulus, "modulus")
     check_image_shape(modulus, "modulus", 2, 4)
     check_bits(spec.params.bits, modulus.dtype)
+    check_nonempty_image(modulus, "modulus")
     h, w = modulus.shape[-2:]
-    if h == 0 or w == 0:
-        raise ValueError(f"modulus must not be an empty image; got shape {tuple(modulus.shape)}")
     check_modulus(modulus, spec.params.bits)
     lead = (1, 1, *modulus.shape)[-4:-2]  # (B, C), with B = 1 and C = 1 filled in for unbatched inputs
     b, c = int(lead[0]), int(lead[1])
@@ -166,6 +166,7 @@ def _solve_mosaic(
     check_cfa(cfa)
     check_floating(modulus, "modulus")
     check_image_shape(modulus, "modulus", 2, 4)
+    check_nonempty_image(modulus, "modulus")
     if modulus.dim() > 2 and modulus.shape[-3] != 1:
         raise ValueError(
             f"modulus must be a mosaic with cfa={cfa!r}, (B, 1, H, W), (1, H, W) or (H, W); got {tuple(modulus.shape)}"

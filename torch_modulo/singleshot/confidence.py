@@ -24,7 +24,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from torch_modulo._checks import check_bits, check_finite, check_floating, check_image_shape, check_tensor
+from torch_modulo._checks import (
+    check_bits,
+    check_finite,
+    check_floating,
+    check_image_shape,
+    check_nonempty_image,
+    check_tensor,
+)
 from torch_modulo.singleshot.grid import components, pair_indices, pair_offsets, path_to_root, spanning_tree
 
 __all__ = ["UnwrapConfidence", "bottleneck_steps", "unwrap_confidence"]
@@ -91,9 +98,8 @@ def unwrap_confidence(restored: torch.Tensor, bits: int = 8, *, neighborhood: in
     check_image_shape(restored, "restored", 2, 4)
     bits = check_bits(bits, restored.dtype)
     pair_offsets(neighborhood)
+    check_nonempty_image(restored, "restored")
     h, w = restored.shape[-2:]
-    if h == 0 or w == 0:
-        raise ValueError(f"restored must not be an empty image; got shape {tuple(restored.shape)}")
     check_finite(restored, "restored")
     if restored.numel() == 0:  # an empty batch
         return torch.empty_like(restored)

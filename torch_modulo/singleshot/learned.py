@@ -718,15 +718,25 @@ def learned_confidence(
         >>> confidence.shape, bool((confidence > 0.5).all())
         (torch.Size([8, 30]), True)
     """
-    from torch_modulo._checks import check_bits, check_floating, check_image_shape, check_modulus, check_tensor
+    from torch_modulo._checks import (
+        check_bits,
+        check_floating,
+        check_image_shape,
+        check_modulus,
+        check_nonempty_image,
+        check_tensor,
+    )
 
     check_tensor(modulus, "modulus")
     check_floating(modulus, "modulus")
     check_image_shape(modulus, "modulus", 2, 4)
+    check_nonempty_image(modulus, "modulus")
     bits = check_bits(bits, modulus.dtype)
     check_modulus(modulus, bits)
     net = load_model(check_weights(weights, "weights"), device=modulus.device)
     augment, tile = check_flag(augment, "augment"), _check_tile(tile, "tile")
+    if modulus.numel() == 0:  # no images or no channels
+        return torch.ones_like(modulus)
     batch = modulus.detach().reshape(-1, *((1, 1, *modulus.shape)[-3:]))
     maps = [learned_k(image, bits, net, 0, augment, tile)[1] for image in batch]
     out = torch.from_numpy(np.stack(maps)) if maps else torch.zeros(modulus.shape, dtype=torch.float64)
