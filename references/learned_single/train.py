@@ -145,6 +145,13 @@ def mosaic_pair(counts: torch.Tensor, cfa: str) -> tuple[torch.Tensor, torch.Ten
     return guide, guide + PERIOD * torch.round((smooth - guide) / PERIOD)
 
 
+def radiance_power(radiance: torch.Tensor, gamma: float) -> torch.Tensor:
+    """``radiance ** gamma`` (negatives clamped to 0): another scene's dynamic range, ``gamma`` times the stops, with
+    the same multiplicative structure (``(R L) ** gamma = R ** gamma L ** gamma``: textures under shading stay
+    textures under shading). The exposure that follows fixes the scale."""
+    return radiance.clamp_min(0.0) ** gamma
+
+
 def make_batch(
     scenes: list[torch.Tensor],
     batch: int,
@@ -156,8 +163,9 @@ def make_batch(
     """(batch, 3, size, size) wrapped inputs and the true counts they come from.
 
     Grey samples are repeated into the three channels. A share ``args.scene_exposure`` of the scene crops is exposed
-    by their whole scene's percentile (``references``: :func:`exposure_references` of every scene). A share
-    ``args.mosaic`` of the samples is mosaicked with a random Bayer pattern first (:func:`mosaic_pair`).
+    by their whole scene's percentile (``references``: :func:`exposure_references` of every scene); the others are
+    raised to a power log-uniform in ``[1 / args.gamma, args.gamma]`` (:func:`radiance_power`) when ``args.gamma >
+    1``. A share ``args.mosaic`` of the samples is mosaicked with a random Bayer pattern first (:func:`mosaic_pair`).
     """
     wrapped, truth = [], []
     for _ in range(batch):
@@ -168,6 +176,8 @@ def make_batch(
             radiance, index = random_crop(scenes, size, rng, tuple(args.scales), with_index=True)
             if args.scene_exposure > 0 and rng.random() < args.scene_exposure:  # no draw when off: runs reproduce
                 scene = references[index]
+            if args.gamma > 1 and scene is None:  # no draw when off either (nor by a whole scene's exposure)
+                radiance = radiance_power(radiance, math.exp(rng.uniform(-math.log(args.gamma), math.log(args.gamma))))
         counts = capture_pair(radiance, rng, args.noise, scene).double()
         counts = counts.expand(3, -1, -1) if counts.shape[0] == 1 else counts
         if rng.random() < args.mosaic:
@@ -312,6 +322,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--mosaic", type=float, default=0.0, help="share of crops seen as Bayer mosaics")
     ap.add_argument(
         "--scene-exposure", type=float, default=0.0, help="share of scene crops exposed by the whole scene's percentile"
+    )
+    ap.add_argument(
+        "--gamma",
+        type=float,
+        default=1.0,
+        help="scene crops' radiance raised to a power log-uniform in [1 / GAMMA, GAMMA] (1: off)",
     )
     ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
     ap.add_argument(

@@ -327,6 +327,19 @@ class TestTraining:
         summary = train.train(train.parse_args([*argv, "--workers", "2", "--log-every", "1"]))
         assert summary["steps"] == 2 and load_model(out / "edge_jump.pt").config["width"] == 4
 
+    def test_radiance_power(self) -> None:
+        """``--gamma``: a crop's stops scale by the power, its shading stays multiplicative, and batches still wrap
+        their true counts."""
+        train = load_script(TRAIN_SCRIPT)
+        texture, shading = torch.rand(3, 8, 8) + 0.5, torch.linspace(1.0, 64.0, 8).view(1, 1, 8)
+        powered = train.radiance_power(texture * shading, 1.5)
+        torch.testing.assert_close(powered, texture**1.5 * shading**1.5)
+        assert float(train.radiance_power(torch.tensor([-1.0, 4.0]), 0.5)[0]) == 0.0  # negatives clamped
+        ramp = torch.linspace(0.0, 1.0, 48).repeat(3, 48, 1) ** 4
+        args = train.parse_args(["--batch", "2", "--crop", "16", "--gamma", "1.5", "--procedural", "0"])
+        wrapped, counts = train.make_batch([ramp], 2, 16, np.random.default_rng(0), args)
+        assert torch.equal(wrapped, torch.remainder(counts, 256)) and float(counts.max()) >= 512
+
     def test_scene_exposure(self) -> None:
         """Exposed by the whole scene, a dark crop of a scene with a bright lamp does not roll over; exposed by
         itself, it always rolls over at least twice."""
