@@ -234,3 +234,55 @@ class TestHistogram:
         if "srgb" not in kwargs:
             with pytest.raises(error, match=match):
                 tonemap_histogram(torch.ones(1, 3, 4, 4), **kwargs)
+
+
+class TestHistogramPrecision:
+    """Regression: dim half-precision input gave NaN and a wrong mapping.
+
+    In float16 the pixels were clamped at float16's smallest normal number (6e-5), the ratio
+    ``expm1(span P) / Y`` overflowed 65504 for them (and ``0 * inf`` gave NaN in a black channel), and log
+    brightness carried only 11 significant bits. The operator documents that scaling the input does not change
+    the output.
+    """
+
+    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize(("narrow", "tol"), [(torch.float16, 2e-3), (torch.bfloat16, 8e-3)])
+    @pytest.mark.parametrize("scale", [1e-4, 3e-3, 1.0, 100.0])
+    def test_half_equals_float32(self, scale: float, narrow: torch.dtype, tol: float, grad: bool) -> None:
+        x = (_hdr((2, 3, 24, 40), seed=34, stops=16) * scale).to(narrow)  # 2**-8 .. 2**8 times the scale
+        x[0, 1, :, :5] = 0.0  # a black channel in coloured pixels
+        expected = tonemap_histogram(x.float())
+        out = tonemap_histogram(x.clone().requires_grad_(grad))
+        assert out.dtype == narrow and out.shape == x.shape
+        assert torch.isfinite(out).all()
+        assert float((out.detach().float() - expected).abs().max()) < tol
+
+    def test_half_real_scene(self, shared_hdr) -> None:  # noqa: ANN001
+        from torch_modulo.io import read_image
+
+        x = read_image(shared_hdr / "polyhaven-cc0" / "apartment.exr")[None].clamp_min(0.0)
+        expected = tonemap_histogram(x)
+        for scale in (1e-4, 1e-3, 1.0):
+            out = tonemap_histogram((x * scale).half())
+            assert out.dtype == torch.float16 and torch.isfinite(out).all()
+            assert float((out.float() - expected).abs().max()) < 2e-3, scale
+
+    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    def test_float32_invariant_to_scale(self, grad: bool) -> None:
+        x = _hdr((1, 3, 24, 40), seed=35, stops=16)  # 2**-8 .. 2**8
+        expected = tonemap_histogram(x)
+        for scale in (1e-30, 1e-20, 1e-6, 1e6, 1e20, 1e30):
+            out = tonemap_histogram((x * scale).float().requires_grad_(grad)).detach()
+            assert torch.isfinite(out).all()
+            assert float((out.double() - expected).abs().max()) < 1e-4, scale
+
+    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    def test_float16_invariant_to_scale(self, grad: bool) -> None:
+        # Powers of two that keep every value a normal float16 scale the half input exactly, so the result is the
+        # float32 result of the unscaled input up to float16 rounding.
+        x = _hdr((1, 3, 24, 40), seed=36, stops=8).half()  # 2**-4 .. 2**4
+        expected = tonemap_histogram(x.float())
+        for scale in (2.0**-10, 2.0**-5, 1.0, 2.0**5, 2.0**11):
+            out = tonemap_histogram((x * scale).requires_grad_(grad)).detach()
+            assert out.dtype == torch.float16 and torch.isfinite(out).all()
+            assert float((out.float() - expected).abs().max()) < 2e-3, scale

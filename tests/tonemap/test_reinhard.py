@@ -96,3 +96,57 @@ class TestReinhard:
             ReinhardToneMap(**kwargs)
         with pytest.raises(error, match=match):
             tonemap_reinhard(torch.ones(1, 3, 4, 4), **kwargs)
+
+
+class TestReinhardPrecision:
+    """Regression: dim half-precision input came out white (or NaN), and so did float32 at tiny scales.
+
+    The tiled path formed ``scale * scale / L_white**2`` in the input's dtype: ``scale**2`` overflowed float16 for
+    an image as dim as x 3e-3, and ``1 / y_max**2`` overflowed float32 for one as dim as x 1e-20.
+    """
+
+    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize(("narrow", "tol"), [(torch.float16, 2e-3), (torch.bfloat16, 8e-3)])
+    @pytest.mark.parametrize("scale", [1e-4, 3e-3, 1.0, 100.0])
+    def test_half_equals_float32(self, scale: float, narrow: torch.dtype, tol: float, grad: bool) -> None:
+        x = (_hdr((2, 3, 24, 40), seed=46, stops=16) * scale).to(narrow)  # 2**-8 .. 2**8 times the scale
+        x[0, :, 0, :5] = 0.0
+        expected = tonemap_reinhard(x.float())
+        out = tonemap_reinhard(x.clone().requires_grad_(grad))
+        assert out.dtype == narrow and out.shape == x.shape
+        assert torch.isfinite(out).all()
+        assert float((out.detach().float() - expected).abs().max()) < tol
+        assert float(expected.mean()) < 0.9  # not the degenerate all-white answer
+
+    def test_half_real_scene(self, shared_hdr) -> None:  # noqa: ANN001
+        from torch_modulo.io import read_image
+
+        x = read_image(shared_hdr / "polyhaven-cc0" / "apartment.exr")[None].clamp_min(0.0) * 1e-3
+        half = x.half()
+        out = tonemap_reinhard(half)
+        assert out.dtype == torch.float16
+        assert float((out.float() - tonemap_reinhard(half.float())).abs().max()) < 2e-3
+        assert abs(float(out.float().mean()) - float(tonemap_reinhard(x).mean())) < 2e-3
+
+    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("scale", [1e-20, 1e-30])
+    def test_float32_tiny_scale_matches_numpy_reference(self, scale: float, grad: bool) -> None:
+        # The default delta (1e-6) dominates the log average of so dim an image: not scale invariant, but defined.
+        x = torch.rand((2, 3, 17, 23), generator=torch.Generator().manual_seed(47), dtype=torch.float64) * scale
+        x[0, :, 0, :5] = 0.0
+        out = tonemap_reinhard(x.float().requires_grad_(grad)).detach()
+        assert torch.isfinite(out).all()
+        for i in range(2):
+            assert np.abs(out[i].double().numpy() - reinhard_reference(x[i].numpy(), 0.18, None, 1e-6)).max() < 1e-5
+
+    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("white", [None, 3.0, float("inf")])
+    @pytest.mark.parametrize("scale", [1e-20, 1e-30, 1e20, 1e30])
+    def test_float32_invariant_to_scale_with_delta(self, scale: float, white: float | None, grad: bool) -> None:
+        # delta is in the input's units: scaling radiance and delta together leaves the output unchanged.
+        x = _hdr((2, 3, 17, 23), seed=48, stops=18, dtype=torch.float32)
+        x[0, :, 0, :5] = 0.0
+        expected = tonemap_reinhard(x, white=white, delta=1e-4)
+        out = tonemap_reinhard((x * scale).requires_grad_(grad), white=white, delta=1e-4 * scale).detach()
+        assert torch.isfinite(out).all()
+        assert float((out - expected).abs().max()) < 1e-5

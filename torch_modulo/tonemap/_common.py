@@ -53,6 +53,20 @@ def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
     return x, shape
 
 
+#: Dtypes too narrow for the operators' arithmetic: float16 overflows at 65504 and keeps 11 significant bits,
+#: bfloat16 keeps 8. Input of these dtypes is mapped in float32 and the result cast back (:func:`widened`).
+WIDEN: tuple[torch.dtype, ...] = (torch.float16, torch.bfloat16)
+
+
+def widened(x: torch.Tensor) -> torch.Tensor:
+    """``x`` in float32 if its dtype is in :data:`WIDEN` (a differentiable copy), else ``x`` itself.
+
+    The operators that use it compute their statistics and mapping in the wider dtype and cast the display values
+    back to the input's dtype: those are in ``[0, 1]``, so the cast loses only the last bits.
+    """
+    return x.float() if x.dtype in WIDEN else x
+
+
 def needs_grad(x: torch.Tensor) -> bool:
     return torch.is_grad_enabled() and x.requires_grad
 

@@ -9,12 +9,9 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import check_flag, check_int, check_real
-from torch_modulo.tonemap._common import as_batch, encode, luminance, needs_grad, restore
+from torch_modulo.tonemap._common import as_batch, encode, luminance, needs_grad, restore, widened
 
 __all__ = ["ClaheToneMap", "tonemap_clahe"]
-
-#: Dtypes too narrow for the equalisation: they are mapped in float32 and the result cast back.
-_WIDEN = (torch.float16, torch.bfloat16)
 
 
 def _check_clahe_args(clip_limit: object, grid_size: object, differentiable: object) -> tuple[float, tuple[int, int]]:
@@ -72,9 +69,8 @@ def tonemap_clahe(
             f"tonemap_clahe needs an image larger than grid_size={grid} along each axis; got {h}x{w} "
             f"(use a smaller grid_size)"
         )
-    src = x if needs_grad(x) else x.detach()
-    if src.dtype in _WIDEN:
-        src = src.float()  # half precision cannot place log luminance on the 256 equalisation levels
+    # Half precision cannot place log luminance on the 256 equalisation levels: widen to float32.
+    src = widened(x if needs_grad(x) else x.detach())
     out = encode(_clahe(src, clip, grid, differentiable), srgb)
     return restore(out.to(x.dtype), shape)
 

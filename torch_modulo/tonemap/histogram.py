@@ -18,6 +18,7 @@ from torch_modulo.tonemap._common import (
     needs_grad,
     restore,
     tiled,
+    widened,
 )
 
 __all__ = ["HistogramToneMap", "fovea_shape", "tonemap_histogram"]
@@ -195,7 +196,8 @@ def tonemap_histogram(
         srgb: apply the sRGB transfer function to the result.
 
     Returns:
-        Display values in ``[0, 1]``, same shape, dtype and device as ``hdr``.
+        Display values in ``[0, 1]``, same shape, dtype and device as ``hdr``. float16 and bfloat16 input is
+        mapped in float32 and the result cast back.
 
     Example:
         Four bins of one decade each; five samples fall in the first, one in each of the others, and the
@@ -215,18 +217,21 @@ def tonemap_histogram(
         return restore(x.clone(), shape)
     b, _, h, w = x.shape
     grad = needs_grad(x)
-    src = x if grad else x.detach()
+    # In float16 the ratio expm1(span P) / Y overflows 65504 for dim pixels (and 0 * inf is NaN in a black
+    # channel), the clamp at float16's smallest normal number (6e-5) merges dimmer ones, and log brightness keeps
+    # 11 bits: map in float32.
+    src = widened(x if grad else x.detach())
     fov_img = F.adaptive_avg_pool2d(src, fovea_shape(h, w, fov, fovea))
     lo, scale, cumf, slope = _histogram_tables(
         luminance(fov_img).reshape(b, -1), ld_min, ld_max, bins, tolerance, max_iter
     )
     span = math.log(ld_max) - math.log(ld_min)
     c = ld_min / (ld_max - ld_min)  # (Ld - Ld_min) / (Ld_max - Ld_min) = c * expm1(span * P)
-    tiny = torch.finfo(x.dtype).tiny
-    if tiled(x):
+    tiny = torch.finfo(src.dtype).tiny
+    if tiled(src):
         # span * P = span * (cumf[i] + (u - i) slope[i]) = offset[i] + u * steep[i]: one gather fewer per pixel.
         steep = span * slope
-        offset = span * cumf - torch.arange(bins + 1, dtype=x.dtype, device=x.device) * steep
+        offset = span * cumf - torch.arange(bins + 1, dtype=src.dtype, device=src.device) * steep
         shift_col, scale_col = col(-lo * scale), col(scale)
 
         def kernel(y: torch.Tensor, buf: list[torch.Tensor]) -> torch.Tensor:
@@ -235,17 +240,17 @@ def tonemap_histogram(
             torch.addcmul(shift_col, torch.log(y, out=u), scale_col, out=u).clamp_(0.0, float(bins))
             idx.copy_(u)  # truncation == floor for u >= 0
             u.mul_(torch.gather(steep, 1, idx, out=tmp)).add_(torch.gather(offset, 1, idx, out=tmp))
-            return u.expm1_().div_(y).mul_(c)
+            return u.expm1_().mul_(c).div_(y)  # in this order: expm1(span P) / y may overflow
 
-        out = map_tiled(x, kernel, 2, index_scratch=True)
+        out = map_tiled(src, kernel, 2, index_scratch=True)
     else:
-        y = luminance(x).reshape(b, -1).clamp_min(tiny)
+        y = luminance(src).reshape(b, -1).clamp_min(tiny)
         u = ((torch.log(y) - lo[:, None]) * scale[:, None]).clamp(0.0, float(bins))
         i = u.detach().floor().long()
         p = torch.gather(cumf, 1, i) + (u - i.to(u.dtype)) * torch.gather(slope, 1, i)
         ratio = c * torch.expm1(span * p) / y
-        out = (x * ratio.reshape(b, 1, h, w)).clamp(0.0, 1.0)
-    return restore(encode(out, srgb), shape)
+        out = (src * ratio.reshape(b, 1, h, w)).clamp(0.0, 1.0)
+    return restore(encode(out, srgb).to(x.dtype), shape)
 
 
 class HistogramToneMap(nn.Module):

@@ -18,6 +18,7 @@ from torch_modulo.tonemap._common import (
     map_tiled,
     restore,
     tiled,
+    widened,
 )
 
 __all__ = ["ReinhardToneMap", "tonemap_reinhard"]
@@ -58,7 +59,9 @@ def tonemap_reinhard(
         srgb: apply the sRGB transfer function to the result.
 
     Returns:
-        Display values in ``[0, 1]``, same shape, dtype and device as ``hdr``.
+        Display values in ``[0, 1]``, same shape, dtype and device as ``hdr``. float16 and bfloat16 input is
+        mapped in float32 and the result cast back. Scaling ``hdr`` and ``delta`` by the same factor leaves the
+        result unchanged.
 
     Example:
         >>> x = torch.tensor([[1.0, 4.0], [16.0, 64.0]])
@@ -71,37 +74,38 @@ def tonemap_reinhard(
     x, shape = as_batch(hdr)
     if x.numel() == 0:
         return restore(x.clone(), shape)
-    h, w = x.shape[-2:]
-    if tiled(x):
-        y_max, log_sum = luminance_stats_tiled(x, delta)
+    src = widened(x)  # float16's range and precision do not hold the scale and its products
+    h, w = src.shape[-2:]
+    # Ld / Lw = s (1 + L / Lwhite²) / (1 + L) with L = s Lw, s = a / L̄w, written (s + (Lw c) c) / (1 + s Lw) with
+    # c = s / Lwhite: neither s² nor 1 / Lwhite² (either may overflow for a very dim or bright image) is formed.
+    if tiled(src):
+        y_max, log_sum = luminance_stats_tiled(src, delta)
         assert log_sum is not None
-        scale = (key / torch.exp(log_sum / (h * w))).to(x.dtype)
-        inv_w2 = _inverse_white_squared(white, y_max * scale)
-        # Ld / Lw = s (1 + L / Lwhite²) / (1 + L) with L = s Lw, s = a / L̄w: (s + s² / Lwhite² Lw) / (1 + s Lw)
-        s_col, a_col = col(scale), col(scale * scale * inv_w2)
+        scale = key / torch.exp(log_sum / (h * w))  # float64, like the sum
+        c = scale * _inverse_white(white, y_max.double() * scale)  # 1 / y_max for the default white
+        s_col, c_col = col(scale.to(src.dtype)), col(c.to(src.dtype))
 
         def kernel(y: torch.Tensor, buf: list[torch.Tensor]) -> torch.Tensor:
-            num = torch.mul(y, a_col, out=buf[0]).add_(s_col)
+            num = torch.mul(y, c_col, out=buf[0]).mul_(c_col).add_(s_col)
             return num.div_(y.mul_(s_col).add_(1.0))
 
-        out = map_tiled(x, kernel, 1)
+        out = map_tiled(src, kernel, 1)
     else:
-        y = luminance(x)
+        y = luminance(src)
         log_avg = torch.exp(torch.log(y + delta).mean(dim=(1, 2, 3)))
         scale = key / log_avg
-        inv_w2 = _inverse_white_squared(white, y.amax(dim=(1, 2, 3)) * scale)
-        big_l = y * img(scale)
-        ratio = img(scale) * (1.0 + big_l * img(inv_w2)) / (1.0 + big_l)
-        out = (x * ratio).clamp(0.0, 1.0)
-    return restore(encode(out, srgb), shape)
+        c = img(scale * _inverse_white(white, y.amax(dim=(1, 2, 3)) * scale))
+        ratio = (img(scale) + y * c * c) / (1.0 + y * img(scale))
+        out = (src * ratio).clamp(0.0, 1.0)
+    return restore(encode(out, srgb).to(x.dtype), shape)
 
 
-def _inverse_white_squared(white: float | None, scaled_max: torch.Tensor) -> torch.Tensor:
-    """``1 / L_white²`` per image, 0 for an infinite white or an all-black image."""
+def _inverse_white(white: float | None, scaled_max: torch.Tensor) -> torch.Tensor:
+    """``1 / L_white`` per image, 0 for an infinite white or an all-black image."""
     if white is not None:
-        return torch.full_like(scaled_max, 0.0 if white == math.inf else 1.0 / (white * white))
+        return torch.full_like(scaled_max, 0.0 if white == math.inf else 1.0 / white)
     safe = torch.where(scaled_max > 0, scaled_max, torch.ones_like(scaled_max))
-    return torch.where(scaled_max > 0, 1.0 / (safe * safe), torch.zeros_like(scaled_max))
+    return torch.where(scaled_max > 0, 1.0 / safe, torch.zeros_like(scaled_max))
 
 
 class ReinhardToneMap(nn.Module):
