@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from torch import nn
 
 import torch_modulo as tm
 from torch_modulo.capture import CPU_TILE
@@ -208,6 +211,68 @@ class TestFloat32CountLimit:
         exact = tm.capture_modulo(torch.tensor([2.0**25 + 3], dtype=torch.float64), 1.0, bits=8)
         tm.capture_intensity(torch.tensor([2.0**30]), 1.0, bits=8)  # clips at 255: exact
         assert exact.tolist() == [3.0] and not recwarn.list
+
+
+class TestExposuresKeepFloat64ThroughDtypeCasts:
+    """Regression: ``.half()`` / ``.to(dtype)`` on a capture layer converted its exposure buffer.
+
+    ``MultiExposureCapture([1, 300, 90000]).half()`` held an infinite exposure (and refused every input), and
+    ``ModuloCapture(1/3).to(torch.bfloat16)`` held 0.33398, so a float32 radiance of 3000 read 233, not 232.
+    """
+
+    CASTS = {  # noqa: RUF012
+        "half": lambda m: m.half(),
+        "bfloat16": lambda m: m.bfloat16(),
+        "float": lambda m: m.float(),
+        "to-float16": lambda m: m.to(torch.float16),
+        "to-bfloat16": lambda m: m.to(dtype=torch.bfloat16),
+        "type-float16": lambda m: m.type(torch.float16),
+    }
+
+    @pytest.mark.parametrize("cast", list(CASTS))
+    def test_single_exposure_layers(self, cast: str) -> None:
+        for make in (tm.ModuloCapture, tm.IntensityCapture):
+            for exposure, peak in ((1 / 3, 3000.0), (torch.tensor([1 / 3]), 3000.0), (90000.0, 3.0)):
+                radiance = torch.tensor([[[[peak, 0.5, 0.2 * peak]]]])
+                before = make(exposure, bits=11)
+                expected = before(radiance)
+                layer = self.CASTS[cast](make(exposure, bits=11))
+                assert layer.exposure.dtype == torch.float64
+                assert torch.equal(layer.exposure, before.exposure)
+                assert torch.equal(layer(radiance), expected)
+        assert tm.ModuloCapture(1 / 3).to(torch.bfloat16)(torch.tensor([3000.0])).tolist() == [232.0]
+
+    @pytest.mark.parametrize("cast", list(CASTS))
+    def test_multi_exposure_capture_and_chain(self, cast: str) -> None:
+        radiance = _radiance((2, 3, 5, 4), torch.device("cpu"), torch.float32) * 0.01
+        taus = [1.0, 300.0, 90000.0]
+        before = tm.MultiExposureCapture(taus, bits=9)
+        layer = self.CASTS[cast](tm.MultiExposureCapture(taus, bits=9))
+        assert layer.exposures.dtype == torch.float64 and layer.exposures.tolist() == taus
+        out, ref = layer(radiance), before(radiance)
+        assert torch.equal(out.moduli, ref.moduli) and torch.equal(out.exposures, ref.exposures)
+        chain = self.CASTS[cast](nn.Sequential(tm.MultiExposureCapture(taus, bits=9), tm.MultiExposureUnwrap(9)))
+        plain = nn.Sequential(tm.MultiExposureCapture(taus, bits=9), tm.MultiExposureUnwrap(9))
+        assert torch.equal(chain(radiance), plain(radiance))
+
+    @pytest.mark.parametrize(
+        ("make", "name"),
+        [
+            (lambda: tm.ModuloCapture(1 / 3), "exposure"),
+            (lambda: tm.IntensityCapture(torch.tensor([2.0, 1 / 3])), "exposure"),
+            (lambda: tm.MultiExposureCapture([1.0, 1 / 3, 90000.0]), "exposures"),
+        ],
+        ids=["ModuloCapture", "IntensityCapture", "MultiExposureCapture"],
+    )
+    def test_still_move_with_the_device(self, make: Callable[[], nn.Module], name: str, device: torch.device) -> None:
+        expected = getattr(make(), name)
+        for target in (device, torch.device("meta")):
+            layer = make().to(target, torch.float16)
+            tau = getattr(layer, name)
+            assert tau.dtype == torch.float64 and tau.device.type == target.type
+            if target.type != "meta":
+                assert torch.equal(tau.cpu(), expected)
+            assert layer.state_dict() == {}  # a configuration, not learned state: nothing saved or loaded
 
 
 class TestStraightThroughIsABool:

@@ -37,7 +37,8 @@ Compilation:
 from __future__ import annotations
 
 import warnings
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple, Self
 
 import torch
 from torch import nn
@@ -310,7 +311,32 @@ class ModuloWrap(nn.Module):
         return f"bits={self.bits}"
 
 
-class _Capture(nn.Module):
+class _ExactExposures(nn.Module):
+    """Base of the capture layers: their float64 exposure buffers keep float64 through dtype casts.
+
+    ``Module.half()``, ``.bfloat16()``, ``.float()`` and ``.to(dtype)`` convert every floating buffer. An exposure
+    is a sensor setting, not a weight: converted, it changes the counts (1/3 becomes 0.33398 in bfloat16, 90000
+    becomes inf in float16). :meth:`_apply` therefore restores the buffers named in :attr:`_exact_buffers` in
+    their previous dtype, on the device the conversion chose, so ``.to(device)`` still moves them. The layers
+    cast the exposure to the radiance's dtype when they use it, as the functions do.
+    """
+
+    #: Names of the buffers whose dtype survives ``Module`` conversions.
+    _exact_buffers: tuple[str, ...] = ()
+
+    def _apply(self, fn: Callable[[torch.Tensor], torch.Tensor], recurse: bool = True) -> Self:
+        kept = {name: self._buffers[name] for name in self._exact_buffers}
+        super()._apply(fn, recurse)
+        for name, old in kept.items():
+            new = self._buffers.get(name)
+            if old is not None and new is not None and new.dtype != old.dtype:
+                self._buffers[name] = old.to(device=new.device)
+        return self
+
+
+class _Capture(_ExactExposures):
+    _exact_buffers = ("exposure",)
+
     def __init__(self, exposure: float | torch.Tensor = 1.0, bits: int = 8, straight_through: bool = False) -> None:
         super().__init__()
         self.bits = check_bits(bits, torch.float64)
@@ -326,7 +352,8 @@ class _Capture(nn.Module):
 class ModuloCapture(_Capture):
     """Module twin of :func:`capture_modulo`: a noise-free modulo sensor with a fixed exposure.
 
-    The exposure is a buffer, so ``.to(device)`` moves it.
+    The exposure is a float64 buffer: ``.to(device)`` moves it, while dtype casts (``.half()``,
+    ``.to(torch.bfloat16)``) leave it float64, so the layer's counts do not change.
 
     Shape:
         - Input: (B, C, H, W) radiance (any shape works).
@@ -462,13 +489,14 @@ def capture_stack(
     return out[0] if unbatched else out
 
 
-class MultiExposureCapture(nn.Module):
+class MultiExposureCapture(_ExactExposures):
     """Module twin of :func:`capture_stack`: a noise-free modulo sensor taking one frame per exposure.
 
     It returns an :class:`ExposureStack` of the moduli and the exposures, so that the decoder that follows needs
     no second argument: ``nn.Sequential(MultiExposureCapture(taus, bits=8), MultiExposureUnwrap(bits=8))`` maps
-    radiance to radiance. The exposures are a buffer, so ``.to(device)`` moves them; the layer pickles, so it
-    works in ``DataLoader`` workers.
+    radiance to radiance. The exposures are a float64 buffer: ``.to(device)`` moves them, while dtype casts
+    (``.half()``, ``.to(torch.bfloat16)``) leave them float64, so the moduli and exposures do not change; the
+    layer pickles, so it works in ``DataLoader`` workers.
 
     Args:
         exposures: ``tau`` > 0 per frame, (M,): any sequence or tensor.
@@ -487,6 +515,8 @@ class MultiExposureCapture(nn.Module):
         >>> chain(radiance)
         tensor([[[[ 0.2500,  2.7500, 70.5000]]]])
     """
+
+    _exact_buffers = ("exposures",)
 
     def __init__(
         self,
