@@ -48,8 +48,6 @@ def anchor_k(
         >>> anchor_k(np.array([[3, 3, 4, 5], [3, 3, 4, 2]]), 0.25).tolist()  # the lone 2 is too small to anchor
         [[0, 0, 1, 2], [0, 0, 1, 0]]
     """
-    from scipy import ndimage
-
     k = np.asarray(k, dtype=np.int64)
     if k.size == 0:
         return k.copy()
@@ -60,34 +58,73 @@ def anchor_k(
         restored = np.asarray(modulus, dtype=np.int64) + (k << bits)
     need = max(1, int(np.ceil(min_fraction * k.size)))
     large = max(need, int(np.ceil(large_fraction * k.size)))
-    best_size, best_level = -1, int(k.min())
-    first_large = None  # the lowest level with a region of ``need`` pixels: the fallback when no level passes
-    for level in np.unique(k):
-        lab, n = ndimage.label(k == level)
-        if not n:
-            continue
-        sizes = np.bincount(lab.ravel())
-        sizes[0] = 0
-        region = int(sizes.argmax())
-        size = int(sizes[region])
-        if size > best_size:
-            best_size, best_level = size, int(level)
-        if size < need:
-            continue
-        if first_large is None:
-            first_large = int(level)
-        if restored is None or size >= large or _smooth_border(lab == region, restored, 1 << (bits - 1)):
-            return np.maximum(k - level, 0)
-    return np.maximum(k - (first_large if first_large is not None else best_level), 0)
+    # Every level at once (labelling each level's mask separately costs levels x pixels): the regions of all
+    # levels, their sizes and levels, and for every level its largest region, the first in raster order on a tie
+    # (the one ``ndimage.label(k == level)`` numbers first).
+    labels, count = _level_regions(k)
+    sizes = np.bincount(labels.ravel(), minlength=count + 1)
+    region_level = np.empty(count + 1, dtype=np.int64)
+    region_level[labels.ravel()] = k.ravel()
+    order = np.lexsort((-sizes[1:], region_level[1:])) + 1  # by level, then largest first; stable: label order
+    sorted_level = region_level[order]
+    largest = order[np.r_[True, sorted_level[1:] != sorted_level[:-1]]]  # every level's largest, levels ascending
+    levels, level_size = region_level[largest], sizes[largest]
+    best_level = int(levels[level_size.argmax()])  # the lowest level with the largest region of all
+    candidates = np.flatnonzero(level_size >= need)
+    if not candidates.size:
+        return np.maximum(k - best_level, 0)
+    if restored is None:
+        return np.maximum(k - levels[candidates[0]], 0)
+    big = candidates[level_size[candidates] >= large]
+    if big.size:  # levels above the first large one are never tried
+        candidates = candidates[candidates <= big[0]]
+    small = candidates[level_size[candidates] < large]
+    if small.size:  # the border test, only where a level needs it (``1 << (bits - 1)`` only then)
+        smooth = _smooth_borders(labels, count, restored, 1 << (bits - 1))
+        passing = small[smooth[largest[small]]]
+        if passing.size:
+            return np.maximum(k - levels[passing[0]], 0)
+    if big.size:
+        return np.maximum(k - levels[big[0]], 0)
+    return np.maximum(k - levels[candidates[0]], 0)  # no level passes: the lowest with a region of ``need``
 
 
-def _smooth_border(region: np.ndarray, restored: np.ndarray, half: int) -> bool:
-    """Whether more than 80% of the 4-neighbour pairs leaving ``region`` step by less than ``half``."""
-    smooth = steep = 0
+def _level_regions(k: np.ndarray) -> tuple[np.ndarray, int]:
+    """Label the 4-connected regions of equal ``k``, all levels in one pass: (H, W) int32 labels 1..count, count.
+
+    ``ndimage.label`` joins any two foreground neighbours, whatever their values, so ``k`` is spread onto a grid
+    of twice the size: pixel ``(y, x)`` at ``(2y, 2x)``, and between two neighbours a link that is foreground
+    only where their ``k`` is equal (the odd-odd cells stay background). Each label's first cell in raster order
+    is a pixel (a link follows the pixel on its left or above), so the labels keep the raster order of the
+    regions' first pixels, as ``ndimage.label(k == level)`` numbers one level's regions. The grid costs 4 bytes
+    (bool) and its labels 16 bytes (int32) per pixel, well under a sparse graph of the pairs.
+    """
+    from scipy import ndimage
+
+    height, width = k.shape
+    grid = np.zeros((2 * height - 1, 2 * width - 1), dtype=bool)
+    grid[::2, ::2] = True
+    grid[::2, 1::2] = k[:, 1:] == k[:, :-1]
+    grid[1::2, ::2] = k[1:] == k[:-1]
+    labels, count = ndimage.label(grid)
+    del grid
+    return np.ascontiguousarray(labels[::2, ::2]), int(count)
+
+
+def _smooth_borders(labels: np.ndarray, count: int, restored: np.ndarray, half: int) -> np.ndarray:
+    """Per region (by label), whether more than 80% of the 4-neighbour pairs leaving it step by less than ``half``.
+
+    Neighbours with different labels differ in ``k`` (equal ones share a region), so every such pair leaves both
+    of its regions and counts for each: one pass over the pairs gives the borders of all regions.
+    """
+    smooth = np.zeros(count + 1, dtype=np.int64)
+    border = np.zeros(count + 1, dtype=np.int64)
     for off in ((0, 1), (1, 0)):
-        first, second = pair_slices(*region.shape, off)
-        leaving = region[first] != region[second]
-        small = np.abs(restored[first] - restored[second])[leaving] < half
-        smooth += int(small.sum())
-        steep += int(small.size - small.sum())
-    return smooth > 4 * steep
+        first, second = pair_slices(*labels.shape, off)
+        leaving = labels[first] != labels[second]
+        ends = (labels[first][leaving], labels[second][leaving])
+        small = np.abs(restored[first][leaving] - restored[second][leaving]) < half
+        for end in ends:
+            border += np.bincount(end, minlength=count + 1)
+            smooth += np.bincount(end[small], minlength=count + 1)
+    return smooth > 4 * (border - smooth)
