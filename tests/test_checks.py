@@ -6,8 +6,9 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
-from torch_modulo._checks import check_choice, check_flag, check_int, check_real
+from torch_modulo._checks import check_bits, check_choice, check_flag, check_int, check_real, exposure_tensor
 
 
 class TestCheckInt:
@@ -108,3 +109,26 @@ class TestNonnegativeMax:
             nonnegative_max(torch.tensor([-1.0, 2.0]), "x")
         with pytest.raises(ValueError, match="1 NaN"):
             nonnegative_max(torch.tensor([math.nan, 2.0]), "x")
+
+
+class TestNumpyInputs:
+    """numpy scalars and arrays are numbers and sequences of numbers like any other."""
+
+    @pytest.mark.parametrize("bits", [np.int64(8), np.int32(8), np.uint8(8), 8, 8.0])
+    def test_bits(self, bits: object) -> None:
+        assert check_bits(bits) == 8 and type(check_bits(bits)) is int
+
+    @pytest.mark.parametrize("bits", [np.float64(8.5), True, np.bool_(True), "8"])
+    def test_bad_bits(self, bits: object) -> None:
+        with pytest.raises(TypeError, match="bits must be an integer"):
+            check_bits(bits)
+
+    def test_exposures(self) -> None:
+        like = torch.zeros(2)
+        for taus in (np.array([1.0, 16.0]), np.array([1, 16]), np.array([1.0, 16.0], dtype=np.float32)):
+            assert exposure_tensor(taus, like).tolist() == [1.0, 16.0]
+        assert exposure_tensor(np.array([[1.0, 4.0], [2.0, 8.0]]), like).shape == (2, 2)
+        assert exposure_tensor(np.float32(0.5), like).item() == 0.5
+        for bad, error in ((np.array([True]), TypeError), (np.array(["a"]), TypeError), (np.array([0.0]), ValueError)):
+            with pytest.raises(error, match="exposures"):
+                exposure_tensor(bad, like, "exposures")

@@ -282,7 +282,7 @@ def check_bits(bits: object, dtype: torch.dtype = torch.float32) -> int:
     A modulus of ``bits`` bits is held exactly by ``dtype`` only while ``2**bits`` is representable without
     rounding: 24 bits in float32, 53 in float64, 11 in float16, 8 in bfloat16.
     """
-    if isinstance(bits, bool) or not isinstance(bits, int | torch.SymInt):
+    if isinstance(bits, bool) or not isinstance(bits, numbers.Integral | torch.SymInt):  # numpy integers too
         if isinstance(bits, float) and bits.is_integer():
             bits = int(bits)
         else:
@@ -405,12 +405,13 @@ def exposure_tensor(
     like: torch.Tensor,
     name: str = "exposure",
 ) -> torch.Tensor:
-    """Turn a positive finite exposure (float, sequence or tensor) into a tensor on ``like``'s device and dtype.
+    """Turn a positive finite exposure (a number, a sequence of numbers, a numpy array or a tensor) into a tensor on
+    ``like``'s device and dtype.
 
     With :func:`validation` off the values are not checked (the conversion is then traceable by ``torch.compile``).
 
     Raises:
-        TypeError: ``exposure`` is not a number, sequence of numbers or tensor.
+        TypeError: ``exposure`` is not a number, sequence of numbers, numpy array or tensor of real numbers.
         ValueError: a value is not positive or not finite.
     """
     if isinstance(exposure, torch.Tensor):
@@ -419,8 +420,14 @@ def exposure_tensor(
         tau = exposure.to(device=like.device, dtype=like.dtype)
     elif isinstance(exposure, bool):
         raise TypeError(f"{name} must be a positive number or tensor; got {exposure!r}")
-    elif isinstance(exposure, int | float):
+    elif isinstance(exposure, numbers.Real):  # int, float and numpy scalars
         tau = torch.tensor(float(exposure), device=like.device, dtype=like.dtype)
+    elif type(exposure).__module__ == "numpy" and hasattr(exposure, "__array__"):  # a numpy array: as a tensor
+        try:
+            array = torch.as_tensor(exposure)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"{name} must hold real numbers; got {exposure!r}") from None
+        return exposure_tensor(array, like, name)
     elif isinstance(exposure, Sequence) and not isinstance(exposure, str):
         try:
             values = [float(v) for v in exposure]
