@@ -2,7 +2,8 @@
 
     python examples/sensor_pipeline.py                        # the bundled CC0 scene, simulated 8-bit camera
     python examples/sensor_pipeline.py --scenes DIR           # every EXR/HDR scene in DIR
-    python examples/sensor_pipeline.py --frames DIR           # frames of a real modulo camera (see FileSensor)
+    python examples/sensor_pipeline.py --frames DIR           # frames of a real modulo camera (see FileSensor);
+                                                              # mosaics are demosaicked, every scene is written
     python examples/sensor_pipeline.py --noise none           # noise-free sensor: every rollover count exact
 
 For scenes, a simulated digital-pixel modulo sensor (shot noise, 1 e- read noise) captures each scene at planned
@@ -21,6 +22,7 @@ from pathlib import Path
 import torch
 
 from torch_modulo.assets import default_scene_path
+from torch_modulo.cfa import demosaic
 from torch_modulo.data import HDRFolder
 from torch_modulo.io import write_image
 from torch_modulo.metrics import exact_k_share
@@ -101,17 +103,18 @@ def from_scenes(args: argparse.Namespace) -> None:
 def from_frames(args: argparse.Namespace) -> None:
     stack = FileSensor(args.frames, bits=args.frame_bits).read()
     hdr = unwrap(stack)
+    if stack.cfa is not None:  # a colour camera's mosaics: unwrapped counts first, then RGB
+        hdr = demosaic(hdr, stack.cfa)
     name = Path(args.frames).name or "frames"
-    save(
-        hdr,
-        args.out,
-        name,
-        {"source": str(args.frames), "bits": stack.bits, "exposures": stack.exposure_matrix()[0].tolist()},
-    )
-    print(f"{name}: {stack} -> radiance {tuple(hdr.shape)}, max {float(hdr.max()):.4g} counts per unit exposure")
+    for b in range(hdr.shape[0]):  # every scene of the stack
+        scene = name if hdr.shape[0] == 1 else f"{name}_b{b:03d}"
+        metadata = {"source": str(args.frames), "bits": stack.bits, "exposures": stack.exposure_matrix()[b].tolist()}
+        save(hdr[b : b + 1], args.out, scene, metadata)
+        peak = float(hdr[b].max())
+        print(f"{scene}: {stack} -> radiance {tuple(hdr[b].shape)}, max {peak:.4g} counts per unit exposure")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
         "--scenes",
@@ -127,7 +130,7 @@ def main() -> None:
     parser.add_argument("--noise", choices=["default", "none"], default="default")
     parser.add_argument("--size", type=int, default=512, help="longer side of the scenes after downsampling")
     parser.add_argument("--max-scenes", type=int, default=3)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.frames is not None:
         from_frames(args)

@@ -200,3 +200,23 @@ class TestMissingScenes:
     def test_named_scene_must_exist(self, common: ModuleType, tmp_path: Path, script: str, option: str) -> None:
         with pytest.raises(FileNotFoundError, match="qt-preview/landscape.hdr"):
             _load(script).main(["--quick", "--out", str(tmp_path), option, "qt-preview/landscape.hdr"])
+
+
+def test_sensor_pipeline_reads_every_scene_of_a_colour_camera_folder(tmp_path: Path) -> None:
+    """``--frames``: a stack of two mosaicked scenes gives two RGB radiance maps (it wrote the first scene's
+    mosaic alone)."""
+    import torch
+
+    from torch_modulo.cfa import demosaic, mosaic
+    from torch_modulo.io import read_image
+    from torch_modulo.sensors import SimulatedModuloSensor, write_frames
+
+    y, x = torch.meshgrid(torch.linspace(0, 1, 6), torch.linspace(0, 1, 8), indexing="ij")
+    rgb = torch.stack([torch.stack([10 + 200 * x, 20 + 150 * y, 30 + 100 * x * y]) * s for s in (1.0, 0.5)])
+    stack = SimulatedModuloSensor(bits=8, noise=None, cfa="GBRG")(rgb, [1.0, 16.0])  # no rollover at 1: exact
+    write_frames(stack, tmp_path / "cam")
+    _load("sensor_pipeline").main(["--frames", str(tmp_path / "cam"), "--out", str(tmp_path / "out")])
+    for b in range(2):
+        radiance = read_image(tmp_path / "out" / f"cam_b{b:03d}_radiance.exr", dtype=torch.float64)
+        expected = demosaic(torch.floor(mosaic(rgb[b : b + 1] * 16, "GBRG")) / 16, "GBRG")[0]
+        torch.testing.assert_close(radiance, expected.double(), rtol=1e-5, atol=1e-4)
