@@ -310,6 +310,9 @@ class TestMetadata:
             write_image(tmp_path / "m.exr", _ramp(1, 2, 2), {3: 1})
         with pytest.raises(TypeError, match="metadata must be a dict; got list"):
             write_image(tmp_path / "m.exr", _ramp(1, 2, 2), [("a", 1)])  # type: ignore[arg-type]
+        for ext in ("exr", "png", "tif"):  # a lone surrogate has no UTF-8 form (EXR raised a RuntimeError)
+            with pytest.raises(ValueError, match=r"metadata\['s'\]\[0\] cannot be stored"):
+                write_image(tmp_path / f"m.{ext}", _ramp(1, 2, 2), {"s": ["\ud83d"]})
         assert _listing(tmp_path) == []
 
 

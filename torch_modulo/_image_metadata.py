@@ -103,13 +103,24 @@ def metadata_from_spec(spec: oiio.ImageSpec) -> dict[str, Any]:
     return native
 
 
+def _check_text(text: str, where: str) -> None:
+    """Refuse text that has no UTF-8 form (a lone surrogate such as ``"\\ud83d"``): no file format stores it."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as error:
+        raise ValueError(f"metadata text {where} cannot be stored: {error.reason} in {text!r}") from None
+
+
 def jsonable(value: Any, where: str) -> Any:
     """A JSON-ready copy of a metadata value; tensors and numpy values become lists and numbers."""
     if isinstance(value, torch.Tensor):
         return jsonable(value.detach().cpu().tolist(), where)
     if isinstance(value, np.ndarray | np.generic):
         return jsonable(value.tolist(), where)
-    if value is None or isinstance(value, bool | int | float | str):
+    if isinstance(value, str):
+        _check_text(value, where)
+        return value
+    if value is None or isinstance(value, bool | int | float):
         return value
     if isinstance(value, list | tuple):
         return [jsonable(v, f"{where}[{i}]") for i, v in enumerate(value)]
@@ -118,6 +129,7 @@ def jsonable(value: Any, where: str) -> Any:
         for k, v in value.items():
             if not isinstance(k, str):
                 raise TypeError(f"metadata keys must be strings; got {k!r} in {where}")
+            _check_text(k, f"a key of {where}")
             out[k] = jsonable(v, f"{where}[{k!r}]")
         return out
     raise TypeError(
