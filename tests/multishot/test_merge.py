@@ -32,6 +32,25 @@ class TestMergeIntensity:
         with pytest.raises(ValueError, match="'box'"):
             tm.merge_intensity(frames, [1.0, 4.0], bits=4, weights="box")
 
+    @pytest.mark.parametrize("half", [torch.float16, torch.bfloat16], ids=str)
+    @pytest.mark.parametrize("weights", ["binary", "hat"])
+    def test_half_precision_frames_with_long_exposures(self, half: torch.dtype, weights: str) -> None:
+        # An exposure of 65536 is inf in float16: computed in the frames' dtype this merged to 0 (and NaN).
+        frames = torch.tensor([[[[0.0, 255.0]]], [[[0.0, 255.0]]], [[[65.0, 255.0]]]])
+        taus = [1.0, 256.0, 65536.0]
+        expected = tm.merge_intensity(frames.double(), taus, 8, weights=weights)
+        out = tm.merge_intensity(frames.to(half), taus, 8, weights=weights)
+        assert out.dtype == half
+        assert torch.allclose(out.double(), expected, rtol=1e-2)
+        assert out[0, 0, 0].item() == pytest.approx(65.0 / 65536.0, rel=1e-2)
+        noisy = tm.merge_intensity(frames.to(half), taus, 8, noise="photon-counting")
+        assert noisy.dtype == half and torch.isfinite(noisy).all() and noisy[0, 0, 0].item() > 0
+        # Radiance beyond the dtype's range comes back as inf, not NaN or 0.
+        bright = tm.merge_intensity(
+            torch.tensor([[[[10.0]]], [[[160.0]]], [[[255.0]]]], dtype=half), [2**-16, 2**-12, 2**-8], 8
+        )
+        assert bright.item() == (float("inf") if half == torch.float16 else pytest.approx(655360.0, rel=1e-2))
+
     def test_modulo_beats_intensity_on_fig8_band(self) -> None:
         # Paper Fig. 8: a band 0..255 seen by 4-bit cameras; 2 modulo captures at ratio 16 beat 5 intensity captures.
         band = torch.linspace(0, 255, 2048, dtype=torch.float64).view(1, 1, 1, -1) / 16.0

@@ -47,7 +47,10 @@ def merge_intensity(
             merge, or None.
 
     Returns:
-        Radiance (B, C, H, W) or (C, H, W), same dtype and device as ``frames``.
+        Radiance (B, C, H, W) or (C, H, W), same dtype and device as ``frames``. float16 and bfloat16 frames are
+        merged in float32 (the noise-aware merge runs in float64, float32 on devices without it), so exposures
+        beyond a half-precision range are fine; radiance beyond the range of ``frames``' dtype (above 65504 for
+        float16) comes back as ``inf``.
 
     Example:
         >>> frames = torch.tensor([[[[10.0]]], [[[160.0]]], [[[255.0]]]])   # (M, C, H, W), 8 bits
@@ -61,26 +64,31 @@ def merge_intensity(
     stack, tau = sort_stack(stack, tau)
     top = float(2**bits - 1)
     noise = as_noise_model(noise)
-    if noise is not None:
-        out = _merge_noisy(stack, tau, top, noise).to(frames.dtype)
+    if noise is not None:  # in float64 (float32 on devices without it), as unwrap_multi decodes
+        wide = torch.float64 if frames.device.type in ("cpu", "cuda") else torch.float32
+        out = _merge_noisy(stack.to(wide), tau, top, noise).to(frames.dtype)
         return out[0] if unbatched else out
-    tau_b = tau.to(frames.dtype).view(*tau.shape, 1, 1, 1)
+    # Half precision is merged in float32: in float16 an exposure of 65536 is inf, which made every estimate of
+    # that frame 0 (and 0 * inf a NaN). float32 and float64 stay as they are.
+    work = torch.float32 if frames.dtype in (torch.float16, torch.bfloat16) else frames.dtype
+    stack = stack.to(work)
+    tau_b = tau.to(work).view(*tau.shape, 1, 1, 1)
     estimates = stack / tau_b
     if weights == "binary":
-        w = ((stack > 0) & (stack < top)).to(frames.dtype)
+        w = ((stack > 0) & (stack < top)).to(work)
     else:
         w = torch.minimum(stack, top - stack)
     total = w.sum(dim=1)
-    merged = (w * estimates).sum(dim=1) / total.clamp_min(torch.finfo(frames.dtype).tiny)
+    merged = (w * estimates).sum(dim=1) / total.clamp_min(torch.finfo(work).tiny)
     fallback = torch.where(stack[:, 0] >= top, estimates[:, 0], estimates[:, -1])
-    out = torch.where(total > 0, merged, fallback)
+    out = torch.where(total > 0, merged, fallback).to(frames.dtype)
     return out[0] if unbatched else out
 
 
 def _merge_noisy(stack: torch.Tensor, tau: torch.Tensor, top: float, noise: NoiseModel) -> torch.Tensor:
-    """Inverse-variance merge of the unsaturated frames of a sorted stack (B, M, C, H, W); float64 out."""
-    x = stack.double()
-    t = tau.double().view(*tau.shape, 1, 1, 1)
+    """Inverse-variance merge of the unsaturated frames of a sorted stack (B, M, C, H, W), in the stack's dtype."""
+    x = stack
+    t = tau.to(x.dtype).view(*tau.shape, 1, 1, 1)
     usable = x < top
     estimates = (x + 0.5) / t
     # The common radiance for the variances: the longest unsaturated frame's (the shortest's if all saturate).
