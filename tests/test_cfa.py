@@ -190,7 +190,11 @@ class TestMosaic:
 
 class TestDemosaic:
     @pytest.mark.parametrize("method", DEMOSAIC_METHODS)
-    @pytest.mark.parametrize("shape", [(1, 2, 2), (1, 1, 4, 6), (2, 3, 1, 8, 10), (0, 1, 4, 4)])
+    @pytest.mark.parametrize(
+        "shape",
+        # Empty images (H or W 0) give empty results, as mosaic does; they crashed in a reshape before.
+        [(1, 2, 2), (1, 1, 4, 6), (2, 3, 1, 8, 10), (0, 1, 4, 4), (1, 1, 0, 0), (2, 1, 0, 4), (1, 6, 0), (0, 1, 0, 0)],
+    )
     def test_round_trip_shapes(
         self, shape: tuple[int, ...], method: str, device: torch.device, dtype: torch.dtype
     ) -> None:
@@ -282,6 +286,11 @@ class TestInterpolateWrapped:
         assert interpolate_wrapped(m, "RGGB")[0, :, 0, 0].tolist() == [250.0, 11.0, 20.0]
         m = torch.tensor([[[[100.0, 250.0], [6.0, 20.0]]]])  # greens 250 and 262: they meet at 0, not at 128
         assert interpolate_wrapped(m, "RGGB")[0, 1, 0, 0].tolist() == 0.0
+
+    @pytest.mark.parametrize("shape", [(1, 1, 0, 0), (2, 1, 4, 0), (1, 0, 2), (0, 1, 4, 4)])
+    def test_empty_images_and_batches_give_empty_results(self, shape: tuple[int, ...]) -> None:
+        out = interpolate_wrapped(torch.zeros(shape), "BGGR", 8)
+        assert out.shape == (*shape[:-3], 3, *shape[-2:]) and out.dtype == torch.float32
 
     def test_batched_equals_per_image(self) -> None:
         m = _rgb((3, 1, 6, 8)).floor() % 256

@@ -243,7 +243,8 @@ def demosaic(counts: torch.Tensor, cfa: str, method: str = "malvar") -> torch.Te
         method: one of :data:`DEMOSAIC_METHODS`.
 
     Returns:
-        (*, 3, H, W) red, green and blue, same dtype and device as ``counts``; differentiable.
+        (*, 3, H, W) red, green and blue, same dtype and device as ``counts``; differentiable. An empty batch or
+        an empty image (H or W 0) gives an empty result of that shape, as :func:`mosaic` does.
 
     Raises:
         TypeError: ``counts`` is not a floating tensor.
@@ -261,9 +262,9 @@ def demosaic(counts: torch.Tensor, cfa: str, method: str = "malvar") -> torch.Te
     check_floating(counts, "counts")
     _check_layout(counts, "counts", 1)
     lead, (h, w) = counts.shape[:-3], counts.shape[-2:]
-    x = counts.reshape(-1, 1, h, w)
-    if x.shape[0] == 0 or h == 0 or w == 0:
+    if counts.numel() == 0:  # an empty batch or empty images: nothing to interpolate (reshape(-1, ...) cannot say)
         return counts.new_zeros((*lead, 3, h, w))
+    x = counts.reshape(-1, 1, h, w)
     padded = x[:, :, _mirror(h, 2, x.device)][:, :, :, _mirror(w, 2, x.device)]
     bilinear = torch.tensor(_KERNELS["bilinear"], dtype=x.dtype, device=x.device).unsqueeze(1) / 8
     filtered = F.conv2d(padded, bilinear)  # (N, 5, H, W)
@@ -297,7 +298,7 @@ def interpolate_wrapped(modulus: torch.Tensor, cfa: str, bits: int = 8) -> torch
 
     Returns:
         (*, 3, H, W) integers in ``[0, 2**bits)``, same dtype and device as ``modulus``; ``mosaic(out, cfa)`` equals
-        ``modulus``.
+        ``modulus``. An empty batch or an empty image gives an empty result of that shape.
 
     Raises:
         TypeError: ``modulus`` is not a floating tensor, or ``bits`` not an integer.
