@@ -104,6 +104,13 @@ class TestRoundTrip:
             write_frames(FrameStack(_moduli((1, 1, 1, 2, 2), 8), [1.0], 8), tmp_path, prefix=".hidden")
         assert list(tmp_path.iterdir()) == []
 
+    def test_empty_batch_refused_nothing_written(self, tmp_path: Path) -> None:
+        # A batch of 0 wrote a manifest listing no frames, which FileSensor then refused to read back.
+        empty = SimulatedModuloSensor(bits=8)(torch.rand(0, 3, 6, 8), [1.0])
+        with pytest.raises(ValueError, match=r"stack has no frames \(a batch of 0, shape \(0, 1, 3, 6, 8\)\)"):
+            write_frames(empty, tmp_path / "stack")
+        assert list(tmp_path.iterdir()) == []
+
 
 class TestCameraFolders:
     def _camera_frames(self, folder: Path, bits: int = 12, sidecar: str = "full") -> torch.Tensor:
@@ -208,6 +215,37 @@ class TestRaw:
         args = {"width": 4, "height": 4, "bits": 12} | kwargs
         with pytest.raises(ValueError, match=message):
             RawFormat(**args)
+
+    @pytest.mark.parametrize(
+        "extensions, expected",
+        [
+            (".raw", (".raw",)),  # one str is one extension, not its characters
+            ("RAW", (".raw",)),
+            (("raw", ".Bin"), (".raw", ".bin")),  # no dot never matched anything
+            ([".dat"], (".dat",)),
+            ({"RAW"}, (".raw",)),
+            ((".raw", ".bin"), (".raw", ".bin")),
+            ((), ()),
+        ],
+    )
+    def test_raw_extensions_normalised(self, tmp_path: Path, extensions: object, expected: tuple) -> None:
+        raw = RawFormat(width=2, height=1, bits=8, extensions=extensions)  # type: ignore[arg-type]
+        assert raw.extensions == expected and raw == RawFormat(width=2, height=1, bits=8, extensions=expected)
+        for i, ext in enumerate(expected):
+            (tmp_path / f"f{i}{ext.upper()}").write_bytes(bytes([i, 7]))
+        if expected:
+            stack = FileSensor(tmp_path, raw=raw, exposures=[1.0 + i for i in range(len(expected))]).read()
+            assert stack.moduli[0, :, 0, 0].tolist() == [[float(i), 7.0] for i in range(len(expected))]
+
+    @pytest.mark.parametrize("bad", ["", ".", "tar.gz", ".raw.", "a/b", " raw", ("raw", "")])
+    def test_raw_extensions_that_cannot_match_refused(self, bad: object) -> None:
+        with pytest.raises(ValueError, match=r"RawFormat.extensions must be file suffixes such as '.raw'"):
+            RawFormat(width=2, height=1, bits=8, extensions=bad)  # type: ignore[arg-type]
+
+    @pytest.mark.parametrize("bad", [None, 3, (".raw", 3), b".raw", [b".raw"]])
+    def test_raw_extensions_of_wrong_type_refused(self, bad: object) -> None:
+        with pytest.raises(TypeError, match="RawFormat.extensions must"):
+            RawFormat(width=2, height=1, bits=8, extensions=bad)  # type: ignore[arg-type]
 
 
 class TestErrors:
@@ -314,6 +352,35 @@ class TestErrors:
         (tmp_path / MANIFEST).write_text("[]")
         with pytest.raises(ValueError, match="must hold a JSON object"):
             FileSensor(tmp_path)
+
+    @pytest.mark.parametrize("key", ["index", "batch"])
+    @pytest.mark.parametrize("value", [10**9, 10**15, 2, -1])
+    def test_impossible_places_refused_before_any_allocation(self, tmp_path: Path, key: str, value: int) -> None:
+        # A huge index or batch laid out a grid as large as it (index 5e6 took 794 MB before failing): refused on
+        # construction, naming the manifest, the frame and the value, since 2 frames fill at most places 0 and 1.
+        write_image(tmp_path / "a.png", torch.zeros(1, 2, 2))
+        write_image(tmp_path / "b.png", torch.ones(1, 2, 2))
+        frames = [{"file": "a.png", "exposure": 1.0}, {"file": "b.png", "exposure": 2.0, key: value}]
+        (tmp_path / MANIFEST).write_text(json.dumps({"bits": 8, "frames": frames}))
+        message = rf"frames\.json \(frame b\.png\): '{key}' must be an int in \[0, 1\] .*2 frames\); got {value}$"
+        with pytest.raises(ValueError, match=message):
+            FileSensor(tmp_path)
+
+    @pytest.mark.parametrize("value", [True, 1.0, "1", None])
+    def test_non_integer_places_refused(self, tmp_path: Path, value: object) -> None:
+        write_image(tmp_path / "a.png", torch.zeros(1, 2, 2))
+        frames = [{"file": "a.png", "exposure": 1.0, "index": value}, {"file": "a.png", "exposure": 2.0, "index": 0}]
+        (tmp_path / MANIFEST).write_text(json.dumps({"bits": 8, "frames": frames}))
+        with pytest.raises(ValueError, match=rf"\(frame a\.png\): 'index' must be an integer; got {value!r}"):
+            FileSensor(tmp_path)
+
+    def test_places_within_the_listed_frames_still_read(self, tmp_path: Path) -> None:
+        write_image(tmp_path / "a.png", torch.zeros(1, 2, 2))
+        write_image(tmp_path / "b.png", torch.ones(1, 2, 2))
+        frames = [{"file": "a.png", "exposure": 1.0, "batch": 1}, {"file": "b.png", "exposure": 2.0, "batch": 0}]
+        (tmp_path / MANIFEST).write_text(json.dumps({"bits": 8, "frames": frames}))
+        stack = FileSensor(tmp_path).read()
+        assert stack.shape == (2, 1, 1, 2, 2) and stack.moduli[:, 0, 0, 0, 0].tolist() == [1.0, 0.0]
 
     def test_intensity_frames_via_simulated_sensor(self, tmp_path: Path) -> None:
         stack = SimulatedIntensitySensor(bits=8, seed=0)(torch.rand(1, 1, 4, 4) * 500, [1.0, 2.0])

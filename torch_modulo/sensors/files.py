@@ -11,8 +11,9 @@ Where :class:`FileSensor` finds each frame's exposure and the bit depth, first m
    Optional keys: ``"kind"`` (``"modulo"`` or ``"intensity"``), ``"cfa"`` (the colour filter array of mosaicked
    frames: ``"RGGB"``, ``"BGGR"``, ``"GRBG"`` or ``"GBRG"``), ``"metadata"`` (a dict), ``"exposures"`` (the
    stack's exposures as (M,) or (B, M) lists), and per frame ``"batch"`` and ``"index"`` (its place in a
-   (B, M, C, H, W) stack; by default frames are the exposures of one scene, in the listed order). Frame files
-   are named relative to the manifest's folder and may not lead out of it (``../x.png`` or ``/x.png`` is refused);
+   (B, M, C, H, W) stack, counted from 0 and below the number of frames listed; by default frames are the
+   exposures of one scene, in the listed order). Frame files are named relative to the manifest's folder and may
+   not lead out of it (``../x.png`` or ``/x.png`` is refused);
 3. a JSON sidecar per frame, ``<file>.json`` or ``<stem>.json`` (``short.png.json`` or ``short.json``), with
    ``"exposure"`` and ``"bits"``;
 4. the frame's own metadata (EXR attributes, or the metadata :func:`torch_modulo.io.write_image` stores in PNG and
@@ -36,7 +37,7 @@ from __future__ import annotations
 import errno
 import json
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -81,11 +82,14 @@ class RawFormat:
         channels: samples per pixel.
         sample_bytes: bytes per sample, 1, 2 or 4; default the smallest that holds ``bits``.
         offset: bytes to skip at the start of each file.
-        extensions: file extensions that mark raw frames when a folder is read.
+        extensions: file extensions that mark raw frames (a file's last suffix is matched, case-insensitively):
+            a sequence of extensions or a single one (``".raw"``); stored lower case with a leading dot
+            (``"RAW"`` becomes ``".raw"``).
 
     Raises:
-        TypeError: a size, the bit depth or the offset is not an integer.
-        ValueError: a value out of range, an unknown byte order, or a sample size that cannot hold ``bits``.
+        TypeError: a size, the bit depth or the offset is not an integer, or an extension not a string.
+        ValueError: a value out of range, an unknown byte order, a sample size that cannot hold ``bits``, or an
+            extension that no file name can end in (empty, with a further dot, a path separator or whitespace).
 
     Example:
         >>> RawFormat(width=640, height=512, bits=12).frame_bytes
@@ -114,7 +118,7 @@ class RawFormat:
             raise ValueError(f"RawFormat.sample_bytes must be {what}; got {nbytes!r}")
         check_int(self.offset, "RawFormat.offset", 0, what="an int >= 0")
         object.__setattr__(self, "sample_bytes", nbytes)
-        object.__setattr__(self, "extensions", tuple(e.lower() for e in self.extensions))
+        object.__setattr__(self, "extensions", _raw_extensions(self.extensions))
 
     @property
     def numpy_dtype(self) -> np.dtype:
@@ -139,6 +143,27 @@ class RawFormat:
         data = np.fromfile(path, dtype=self.numpy_dtype, offset=self.offset)
         array = data.reshape(self.height, self.width, self.channels).astype(np.float64)
         return torch.from_numpy(array).permute(2, 0, 1).contiguous()
+
+
+def _raw_extensions(extensions: object) -> tuple[str, ...]:
+    """``RawFormat.extensions`` as a tuple of lower-case suffixes with their leading dot, each one a file can have."""
+    if isinstance(extensions, str):
+        extensions = (extensions,)  # one extension, not its characters
+    if isinstance(extensions, bytes | bytearray) or not isinstance(extensions, Iterable):
+        raise TypeError(f"RawFormat.extensions must be a str or a sequence of str; got {type(extensions).__name__}")
+    out = []
+    for ext in extensions:
+        if not isinstance(ext, str):
+            raise TypeError(f"RawFormat.extensions must hold str; got {ext!r} ({type(ext).__name__})")
+        suffix = "." + ext.lower().removeprefix(".")
+        # Files are matched by their last suffix (Path.suffix): these could never match one.
+        if suffix == "." or "." in suffix[1:] or any(c in suffix for c in "/\\") or any(c.isspace() for c in suffix):
+            raise ValueError(
+                f"RawFormat.extensions must be file suffixes such as '.raw' (one dot, no separators or spaces); "
+                f"got {ext!r}"
+            )
+        out.append(suffix)
+    return tuple(out)
 
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -344,7 +369,12 @@ class FileSensor:
                 frame.bits = _bits_value(entry["bits"], where)
             for key in ("batch", "index"):
                 if key in entry:
-                    setattr(frame, key, _from_source(check_int, entry[key], f"{where}: {key!r}", 0, what="an int >= 0"))
+                    # A place at or past the number of frames listed cannot be filled: refuse it before the stack's
+                    # (batch, exposure) grid is laid out, which is as large as the biggest place.
+                    listed = f"{len(entries)} frame{'s' if len(entries) > 1 else ''}"
+                    what = f"an int in [0, {len(entries) - 1}] (the manifest lists {listed})"
+                    place = _from_source(check_int, entry[key], f"{where}: {key!r}", 0, len(entries) - 1, what=what)
+                    setattr(frame, key, place)
             frames.append(frame)
         if data.get("bits") is not None:
             bits = _bits_value(data["bits"], manifest)
@@ -446,9 +476,9 @@ class FileSensor:
                 raise ValueError(f"{where}: two frames for batch {frame.batch}, exposure {m}")
             slots[(frame.batch, m)] = n
         b, m_count = max(counters) + 1, max(counters.values())
-        missing = [(i, j) for i in range(b) for j in range(m_count) if (i, j) not in slots]
-        if missing:
-            raise ValueError(f"{where}: no frame for (batch, exposure) {missing[0]} of a {b} x {m_count} stack")
+        missing = next(((i, j) for i in range(b) for j in range(m_count) if (i, j) not in slots), None)
+        if missing is not None:
+            raise ValueError(f"{where}: no frame for (batch, exposure) {missing} of a {b} x {m_count} stack")
         moduli = torch.stack([torch.stack([images[slots[(i, j)]] for j in range(m_count)]) for i in range(b)])
         tau = torch.tensor([[taus[slots[(i, j)]] for j in range(m_count)] for i in range(b)], dtype=torch.float64)
         stored = data.get("exposures")
@@ -533,7 +563,7 @@ def write_frames(
 
     Raises:
         TypeError: ``stack`` is not a FrameStack, or its metadata is not JSON-serialisable.
-        ValueError: unknown format, or a bit depth the format cannot hold.
+        ValueError: an empty stack (a batch of 0), an unknown format, or a bit depth the format cannot hold.
         OSError: a frame or the manifest could not be written (a full disk, no permission); ``folder`` is then
             unchanged.
 
@@ -547,6 +577,12 @@ def write_frames(
     """
     if not isinstance(stack, FrameStack):
         raise TypeError(f"stack must be a FrameStack; got {type(stack).__name__}")
+    if stack.batch_size == 0:
+        # A folder of no frames has no manifest FileSensor can read back (it must list the frames).
+        raise ValueError(
+            f"stack has no frames (a batch of 0, shape {tuple(stack.shape)}): a folder of frames needs at least one "
+            "scene; nothing was written"
+        )
     formats = {"exr": ".exr", "png": ".png", "tiff": ".tif", "tif": ".tif"}
     check_choice(format, "format", formats)
     if not isinstance(prefix, str) or not prefix or os.sep in prefix or prefix.startswith("."):
