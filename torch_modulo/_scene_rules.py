@@ -64,10 +64,13 @@ def plan_scene(
     """Protocol N's exposures for one scene (``simulate --exposures auto``): ``(exposures, scale, stops)``.
 
     The scene needs ``stops = ceil(log2(max / p) + 4)``, with ``p`` the 0.1th percentile of its positive values.
-    The exposures are :func:`~torch_modulo.plan_exposures` ``(stops, bits, noise=noise)``, scaled so that ``p``
-    times the radiance scale reads 16 counts at the longest. With ``scale="auto"`` the scale is ``16 / p`` and the
-    longest exposure is 1; with a number, the exposures move instead. Where the noise-free plan would put the
-    brightest value exactly on the rollover at the shortest exposure, one more stop is planned.
+    The exposures are :func:`~torch_modulo.plan_exposures` ``(stops, bits, noise=noise, longest=L)``, with ``L``
+    the exposure at which ``p`` times the radiance scale reads 16 counts. With ``scale="auto"`` the scale is
+    ``16 / p`` and the longest exposure is 1; with a number, the exposures move instead. The plan is made at the
+    exposures that are captured: under dark current (electrons per unit exposure) a plan made at other exposures
+    and rescaled would reason about the wrong dark counts; without it, this is the plan for ``base=1`` scaled to
+    end at ``L``. Where the noise-free plan would put the brightest value exactly on the rollover at the shortest
+    exposure, one more stop is planned.
 
     Args:
         image: radiance >= 0 with at least one positive value, any shape.
@@ -94,26 +97,31 @@ def plan_scene(
     auto_scale, stops = protocol_n(image)
     peak = float(image.max())
     factor = auto_scale if scale == "auto" else float(scale)
+    longest = auto_scale / factor  # the 0.1th percentile reads 16 counts there
     for extra in (0, 1):
-        plan = plan_exposures(stops + extra, bits, noise=model)
-        longest = auto_scale / factor  # the 0.1th percentile reads 16 counts there
-        taus = [t * longest / plan[-1] for t in plan]
+        taus = plan_exposures(stops + extra, bits, noise=model, longest=longest)
         if peak * factor * taus[0] * (1 + 1e-6) < 2**bits:
             break
     return taus, factor, stops + extra
 
 
-def _brightest_count(bits: int, noise: NoiseModel | None) -> float:
-    """The largest expected count whose reading stays three deviations below the rollover (``2**bits - 1``
-    without noise)."""
+def _brightest_count(bits: int, noise: NoiseModel | None, exposure: float) -> float:
+    """The largest expected signal count at ``exposure`` whose reading, with that exposure's dark counts, stays three
+    deviations below the rollover (``2**bits - 1`` without noise)."""
     from torch_modulo.multishot import brightest_unwrapped
 
     top = 2.0**bits - 1
     if noise is None or noise.is_noiseless:
         return top
-    lo = brightest_unwrapped(bits, noise)
-    if lo < 1:
+    if brightest_unwrapped(bits, noise) < 1:
         raise ValueError(f"noise {noise} leaves no count below the rollover at bits={bits}: use more bits")
+    lo = brightest_unwrapped(bits, noise, exposure=exposure)
+    if lo < 1:
+        raise ValueError(
+            f"noise {noise}: the dark counts of the shortest exposure {exposure:g} "
+            f"({noise.dark_counts * exposure:g} counts) leave no count below the rollover at bits={bits}; "
+            "use shorter exposures"
+        )
     return lo
 
 
@@ -121,8 +129,9 @@ def fit_scale(image: torch.Tensor, bits: int, exposures: Sequence[float], noise:
     """The radiance scale of ``simulate --scale auto`` for given exposures (see :mod:`torch_modulo.pipeline`).
 
     Several exposures: the brightest value reads ``2**bits - 1`` at the shortest (under noise, the largest count
-    three standard deviations below the rollover). One exposure: the 99.9th percentile of the luminance (of all
-    values for grey or two-channel images) reads ``16 * 2**bits - 1`` counts, so the frame wraps.
+    whose reading, with the dark counts of that exposure, stays three standard deviations below the rollover). One
+    exposure: the 99.9th percentile of the luminance (of all values for grey or two-channel images) reads
+    ``16 * 2**bits - 1`` counts, so the frame wraps.
 
     Args:
         image: radiance >= 0, (C, H, W) or any shape (luminance is taken where C = 3).
@@ -143,7 +152,7 @@ def fit_scale(image: torch.Tensor, bits: int, exposures: Sequence[float], noise:
         raise ValueError(f"the image is black (maximum {peak}): nothing to scale")
     taus = [float(t) for t in exposures]
     if len(taus) > 1:
-        return _brightest_count(bits, noise_model(noise)) / (peak * min(taus))
+        return _brightest_count(bits, noise_model(noise), min(taus)) / (peak * min(taus))
     values = image
     if image.dim() >= 3 and image.shape[-3] == 3:
         from torch_modulo.tonemap import REC709_LUMA
@@ -159,19 +168,21 @@ def unsafe_ratio_warnings(taus: Sequence[float], bits: int, noise: NoiseModel | 
     """A warning when given exposures have a neighbouring ratio the noise model says is unsafe (naming a plan)."""
     if noise is None or noise.is_noiseless or len(taus) < 2:
         return []
-    from torch_modulo.multishot import plan_exposures, unsafe_ratio_message
+    from torch_modulo.multishot import unsafe_ratio_message
 
     ordered = sorted(taus)
     message = unsafe_ratio_message(max(b / a for a, b in zip(ordered, ordered[1:], strict=False)), bits, noise)
     if message is None:
         return []
     stops = scene_stops(image)
-    try:
-        plan = f"{len(plan_exposures(stops, bits, noise=noise))} exposures"
+    try:  # what --exposures auto plans (the longest exposure 1: under dark current the count depends on it)
+        auto, _, stops = plan_scene(image, bits, noise)
+        plan = f"{len(auto)} exposures"
     except ValueError as error:
         plan = f"none possible: {error}"
     return [
-        f"{message}, e.g. --exposures auto (for this scene plan_exposures({stops}, bits={bits}, noise=noise): {plan})"
+        f"{message}, e.g. --exposures auto (for this scene plan_exposures({stops}, bits={bits}, noise=noise, "
+        f"longest=1): {plan})"
     ]
 
 

@@ -356,9 +356,9 @@ def _add_simulate(commands: Any) -> None:  # long only because of the options' h
         type=_exposures,
         default="auto",
         metavar="auto|T1,T2,...",
-        help="auto (default): per scene, plan_exposures(stops, bits, noise=...) for the scene's own stops "
-        "(log2 of its maximum over the 0.1th percentile of its positive values, plus 4, rounded up), the longest "
-        "exposure 1; or exposures, comma-separated, e.g. 1,16,256 (under noise, ratios the noise model says are "
+        help="auto (default): per scene, plan_exposures(stops, bits, noise=..., longest=1) for the scene's own "
+        "stops (log2 of its maximum over the 0.1th percentile of its positive values, plus 4, rounded up); or "
+        "exposures, comma-separated, e.g. 1,16,256 (under noise, ratios the noise model says are "
         "unsafe draw a warning naming a safe plan; one exposure: a single-shot stack)",
     )
     simulate.add_argument(

@@ -19,8 +19,8 @@ How ``simulate`` scales a scene and chooses its exposures (radiance in counts pe
 - **Planned exposures** (``exposures="auto"``, the command line's default; :func:`plan_scene`): as protocol N of
   the benchmarks, the 0.1th percentile of the scene's positive values reads 16 counts at the longest exposure
   (1), the scene needs ``ceil(log2(max / that percentile) + 4)`` stops, and the exposures are
-  :func:`~torch_modulo.plan_exposures` for those stops, the bit depth and the noise model, the longest normalised
-  to 1 (noise-free: the noise-free plan).
+  :func:`~torch_modulo.plan_exposures` for those stops, the bit depth and the noise model with ``longest=1`` (so
+  that dark current is planned at the exposures captured; noise-free: the noise-free plan).
 - **Given exposures, several** (:func:`fit_scale`): the brightest value reads ``2**bits - 1`` at the shortest
   exposure; under noise, the largest count whose noisy reading stays three standard deviations below the
   rollover. That frame does not roll over, as multi-shot unwrapping needs.

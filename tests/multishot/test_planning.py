@@ -70,6 +70,52 @@ class TestPlanExposuresUnderNoise:
         brightest = 2.0**16 * plan[0] / plan[-1]  # E_max reads 2**16 counts at the longest exposure
         assert brightest + 3 * noise.count_variance(brightest) ** 0.5 <= 255
 
+    @pytest.mark.parametrize(
+        "noise", [None, "photon-counting", "q16", "dfpa", tm.sensors.NoiseModel(read_noise=3.0, prnu=0.02)]
+    )
+    def test_without_dark_current_a_plan_at_base_b_is_the_scaled_plan(self, noise: object) -> None:
+        unit = tm.plan_exposures(20, 8, noise=noise)
+        for b in (1e-5, 0.37, 1e3):
+            assert tm.plan_exposures(20, 8, noise=noise, base=b) == pytest.approx([b * t for t in unit], rel=1e-9)
+
+    @pytest.mark.parametrize("noise", [None, "photon-counting", tm.sensors.NoiseModel(read_noise=3.0, prnu=0.02)])
+    def test_longest_without_dark_current_is_the_base_one_plan_rescaled(self, noise: object) -> None:
+        unit = tm.plan_exposures(20, 8, noise=noise)  # exactly what plan_scene did before planning with longest=
+        for longest in (1e-5, 1.0, 1e3):
+            assert tm.plan_exposures(20, 8, noise=noise, longest=longest) == [t * longest / unit[-1] for t in unit]
+
+    @pytest.mark.parametrize("dark", [5.0, 20.0, 100.0])
+    def test_under_dark_current_longest_plans_at_the_exposures_captured(self, dark: float) -> None:
+        noise = tm.sensors.NoiseModel(dark_current=dark)  # electrons per unit exposure: the plan depends on its unit
+        for longest in (1.0, 1e-4, 50.0):
+            taus = tm.plan_exposures(20, 8, noise=noise, longest=longest)
+            assert taus[-1] == pytest.approx(longest, rel=1e-15)
+            assert taus == pytest.approx(tm.plan_exposures(20, 8, noise=noise, base=taus[0]), rel=1e-9)
+        unit = tm.plan_exposures(20, 8, noise=noise)
+        assert len(tm.plan_exposures(20, 8, noise=noise, longest=1.0)) != len(unit)  # rescaling it would be wrong
+
+    @pytest.mark.parametrize("dark", [0.0, 20.0, 100.0])
+    def test_shortest_exposure_leaves_room_for_the_dark_counts(self, dark: float) -> None:
+        # Regression: the brightest radiance read brightest_unwrapped counts at the shortest exposure, plus dark counts
+        # that took it over the rollover (dark=100: 41% of the brightest tenth of pixels wrong).
+        noise = tm.sensors.NoiseModel(dark_current=dark)
+        for base in (1.0, 0.25):
+            plan = tm.plan_exposures(12, 8, noise=noise, base=base)
+            total = 2.0**12 * plan[0] / plan[-1] + noise.dark_counts * plan[0]  # E_max's signal plus dark counts
+            assert total + 3 * noise.count_variance(total) ** 0.5 == pytest.approx(255, abs=1e-6)
+        whole = tm.multishot.brightest_unwrapped(8, noise)
+        assert tm.multishot.brightest_unwrapped(8, noise, exposure=2.0) == pytest.approx(whole - 2 * dark, abs=1e-9)
+        assert tm.multishot.brightest_unwrapped(8, noise, exposure=1e6) == (0.0 if dark else whole)
+
+    def test_dark_current_plan_decodes_the_brightest(self) -> None:
+        noise = tm.sensors.NoiseModel(dark_current=100.0)
+        taus = tm.plan_exposures(12, 8, noise=noise)
+        top = tm.multishot.brightest_unwrapped(8, noise, exposure=taus[0]) / taus[0]  # the plan's E_max
+        radiance = (torch.exp2(torch.linspace(-12, 0, 256, dtype=torch.float64)) * top).expand(1, 1, 16, 256)
+        frames = tm.sensors.SimulatedModuloSensor(bits=8, noise=noise, seed=0)(radiance, taus)
+        relative = (tm.unwrap_multi(frames.moduli, frames.exposures, 8, noise=noise) - radiance).abs() / radiance
+        assert float((relative[..., 230:] > 0.5).double().mean()) == 0.0  # the brightest tenth
+
     def test_without_noise_unchanged(self) -> None:
         assert tm.plan_exposures(24, 8, noise=None) == tm.plan_exposures(24, 8)
 
@@ -92,6 +138,13 @@ class TestPlanExposuresUnderNoise:
                 {"stops": 10, "bits": 4, "noise": tm.sensors.NoiseModel(read_noise=8.0)},
                 ValueError,
                 "read noise alone exceeds the decoding gate",
+            ),
+            ({"stops": 10, "base": 2.0, "longest": 8.0}, ValueError, "give base or longest, not both"),
+            ({"stops": 10, "longest": 0.0}, ValueError, "longest must be"),
+            (
+                {"stops": 10, "noise": tm.sensors.NoiseModel(dark_current=300.0)},
+                ValueError,
+                "dark counts of the shortest exposure base=1 \\(300 counts\\) leave no count below the rollover",
             ),
         ],
     )

@@ -30,12 +30,20 @@ def _gate(bits: int, sigmas: float) -> float:
     return (2**bits / (2.0 * sigmas)) ** 2
 
 
-def brightest_unwrapped(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> float:
-    """The largest expected count ``c`` whose noisy reading stays ``sigmas`` deviations below ``2**bits - 1``.
+def brightest_unwrapped(bits: int, noise: NoiseModel, sigmas: float = 3.0, exposure: float = 0.0) -> float:
+    """The largest expected signal count ``c`` whose noisy reading stays ``sigmas`` deviations below ``2**bits - 1``
+    in a frame of length ``exposure``.
+
+    The frame also holds the dark counts of that exposure, ``noise.dark_counts * exposure``: they take their share
+    of the counts below the rollover, and their shot noise is in the deviation. With ``exposure=0`` (or no dark
+    current) ``c`` is the whole expected count. Returns 0 when the dark counts alone leave no room.
 
     Example:
         >>> 200 < brightest_unwrapped(8, NoiseModel()) < 215
         True
+        >>> dark = NoiseModel(dark_current=20.0)                 # 20 e- per unit exposure, 1 e- per count
+        >>> round(brightest_unwrapped(8, dark) - brightest_unwrapped(8, dark, exposure=2.0), 9)
+        40.0
     """
     top = 2**bits - 1.0
     lo, hi = 0.0, top
@@ -45,7 +53,7 @@ def brightest_unwrapped(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> fl
             lo = mid
         else:
             hi = mid
-    return lo
+    return max(lo - noise.dark_counts * exposure, 0.0)
 
 
 def _largest_ratio(
@@ -74,11 +82,17 @@ def _noisy_plan(
             f"noise {noise} leaves no margin at bits={bits}: its read noise alone exceeds the decoding gate "
             f"(2^bits / (2 sigmas))^2 = {gate:g}; use more bits or fewer sigmas"
         )
-    first = brightest_unwrapped(bits, noise, sigmas)
+    first = brightest_unwrapped(bits, noise, sigmas, exposure=base)  # E_max's signal count at `base`
+    if not first > 0:
+        raise ValueError(
+            f"noise {noise}: the dark counts of the shortest exposure base={base:g} "
+            f"({noise.dark_counts * base:g} counts) leave no count below the rollover at bits={bits}; "
+            "use a shorter base (or longest)"
+        )
     longest = base * 2.0**stops / first  # E_min = 1 / longest reads one count there
     if longest <= base:
         return [float(base)]
-    # Radiances E_min .. E_max on a log grid; E_max reads `first` counts at `base`.
+    # Radiances E_min .. E_max on a log grid; E_max reads `first` counts (plus dark counts) at `base`.
     radiance = 2.0 ** torch.linspace(0.0, float(stops), max(256, int(32 * stops)), dtype=torch.float64) / longest
     radiance = radiance + noise.dark_counts
     oracle = noise.count_variance(longest * radiance) / longest**2
@@ -104,7 +118,8 @@ def plan_exposures(
     stops: float,
     bits: int = 8,
     *,
-    base: float = 1.0,
+    base: float | None = None,
+    longest: float | None = None,
     max_ratio: float | None = None,
     noise: NoiseModel | str | None = None,
     sigmas: float = 3.0,
@@ -115,15 +130,23 @@ def plan_exposures(
 
     A scene spans ``E_max / E_min = 2**stops``, where ``E_min`` reads one count at the longest exposure and
     ``E_max`` must not roll over at the shortest exposure ``base``. Without noise, neighbouring ratios of up to
-    ``max_ratio`` are spread evenly. With a ``noise`` model the shortest exposure keeps ``E_max`` ``sigmas``
-    deviations below the rollover, and each ratio is as large as the pixels that still need the next frame allow
-    (see the module docstring), so that :func:`~torch_modulo.unwrap_multi` with the same ``noise`` decodes every
-    radiance to within ``tolerance`` of what its longest frame alone would give, or to its physical limit.
+    ``max_ratio`` are spread evenly. With a ``noise`` model the shortest exposure keeps ``E_max`` (plus the dark
+    counts of that exposure) ``sigmas`` deviations below the rollover, and each ratio is as large as the pixels
+    that still need the next frame allow (see the module docstring), so that :func:`~torch_modulo.unwrap_multi`
+    with the same ``noise`` decodes every radiance to within ``tolerance`` of what its longest frame alone would
+    give, or to its physical limit.
+
+    Plan in the unit the frames are captured in. Dark current is in electrons per unit exposure, so under dark
+    current a plan depends on its absolute exposures: a plan rescaled afterwards (``[t / plan[-1] for t in plan]``)
+    is a plan for other dark counts, and may not decode. Give ``longest`` to fix the longest exposure instead of
+    the shortest: the plan is then made with the base that ends it at ``longest``. Without dark current every plan
+    is the ``base=1`` plan scaled, and ``longest`` gives exactly that plan times ``longest / plan[-1]``.
 
     Args:
         stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
         bits: the sensor's bit depth.
-        base: the shortest exposure.
+        base: the shortest exposure; default 1 (unless ``longest`` is given).
+        longest: the longest exposure, instead of ``base``.
         max_ratio: the largest neighbouring ratio; default ``2**bits - 1`` (2 for a 1-bit counter).
         noise: the sensor's :class:`~torch_modulo.noise.NoiseModel` (or a preset name), or None for a noise-free
             sensor.
@@ -132,11 +155,12 @@ def plan_exposures(
         min_ratio: with noise, the smallest ratio worth a frame (> 1).
 
     Returns:
-        Exposures in ascending order, starting at ``base``.
+        Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
 
     Raises:
         TypeError: an argument of the wrong type.
-        ValueError: a value out of range, or a noise model that no exposure plan can decode.
+        ValueError: a value out of range, both ``base`` and ``longest``, or a noise model that no exposure plan can
+            decode (also: dark counts at ``base`` that reach the rollover).
 
     Example:
         >>> plan_exposures(24, bits=8, max_ratio=256)     # the paper: three 8-bit captures cover 24 stops
@@ -146,10 +170,19 @@ def plan_exposures(
         >>> plan = plan_exposures(16, bits=8, noise="q16")  # 16 e- per count, 16 e- read noise
         >>> len(plan) > 3, max(b / a for a, b in zip(plan, plan[1:])) < 32
         (True, True)
+        >>> dark = NoiseModel(dark_current=5.0)           # 5 e- per unit exposure: plan where the frames are taken
+        >>> taus = plan_exposures(16, bits=8, noise=dark, longest=1.0)
+        >>> same = plan_exposures(16, bits=8, noise=dark, base=taus[0])  # the plan made at its own shortest exposure
+        >>> taus[-1], len(same) == len(taus) and all(abs(a / b - 1) < 1e-9 for a, b in zip(taus, same))
+        (1.0, True)
     """
     stops = check_real(stops, "stops", 0.0)
     bits = check_bits(bits, torch.float64)
-    base = check_real(base, "base", positive=True)
+    if base is not None and longest is not None:
+        raise ValueError(f"give base or longest, not both; got base={base!r} and longest={longest!r}")
+    base = 1.0 if base is None else check_real(base, "base", positive=True)
+    if longest is not None:
+        longest = check_real(longest, "longest", positive=True)
     if max_ratio is None:
         limit = 2.0**bits - 1 if bits > 1 else 2.0  # a 1-bit counter decodes integer ratios up to 2 exactly
     else:
@@ -168,13 +201,32 @@ def plan_exposures(
         min_ratio = check_real(min_ratio, "min_ratio")
         if not 1 < min_ratio <= limit:
             raise ValueError(f"min_ratio must be in (1, max_ratio = {limit:g}]; got {min_ratio}")
-        return _noisy_plan(stops, bits, base, limit, noise, sigmas, tolerance, min_ratio)
+        if longest is not None and noise.dark_counts > 0:
+            base = _base_for_longest(stops, bits, longest, noise, sigmas)
+        plan = _noisy_plan(stops, bits, base, limit, noise, sigmas, tolerance, min_ratio)
+    else:
+        plan = _noise_free_plan(stops, bits, base, limit)
+    if longest is None:
+        return plan
+    return [t * longest / plan[-1] for t in plan]
+
+
+def _noise_free_plan(stops: float, bits: int, base: float, limit: float) -> list[float]:
     span_log2 = stops - bits
     if span_log2 <= 0:
         return [float(base)]
     count = 1 + math.ceil(span_log2 / math.log2(limit) - 1e-12)
     step = 2.0 ** (span_log2 / (count - 1))
     return [float(base * step**i) for i in range(count)]
+
+
+def _base_for_longest(stops: float, bits: int, longest: float, noise: NoiseModel, sigmas: float) -> float:
+    """The base whose noisy plan ends at ``longest``: ``longest = base 2**stops / s(base)`` with ``s(base) = c -
+    D base`` (:func:`brightest_unwrapped` at ``base``, ``c`` its whole count, ``D`` the dark counts per unit
+    exposure), solved for the base. Above ``longest`` the plan is the single frame ``base``, which then fits the
+    scene at ``longest`` too."""
+    whole = brightest_unwrapped(bits, noise, sigmas)
+    return longest * whole / (2.0**stops + longest * noise.dark_counts)
 
 
 def safe_ratio(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> tuple[float, float]:
