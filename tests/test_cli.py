@@ -929,6 +929,8 @@ BAD_OPTIONS = [
     (["tonemap", "{in}", "{out}", "--report", "{out}/a.png"], "would overwrite the output"),
     (["simulate", "{in}", "{out}", "--report", "{out}/a/frames.json"], "would overwrite the output"),
     (["tonemap", "{in}", "{out}", "--report", "{in}/.."], "is a folder"),
+    (["tonemap", "{in}", "{out}", "--report", "{out}"], "is a folder"),
+    (["tonemap", "{in}", "{out}", "--report", "{out}/.torch-modulo/r.json"], "inside the folder of done markers"),
     (["tonemap", "{in}", "{out}", "--op", "drago"], "invalid choice: 'drago'"),
     (["tonemap", "{in}", "{out}", "--op", "reinhard", "--param", "gamma=2"], "has no parameter 'gamma'"),
     (["tonemap", "{in}", "{out}", "--op", "reinhard", "--param", "key=-1"], "key"),

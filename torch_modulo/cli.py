@@ -695,14 +695,17 @@ def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.Argume
     return parser
 
 
-def _report_clash(report: Path, source: Path, tasks: Sequence[Any]) -> str | None:
-    """Why ``--report`` may not be written where it points (an input, inside the input folder, an output or inside
-    one, an existing folder), or None."""
+def _report_clash(report: Path, source: Path, out: Path, tasks: Sequence[Any]) -> str | None:
+    """Why ``--report`` may not be written where it points (a folder or OUT itself, the done markers' folder, an
+    input, inside the input folder, an output or inside one), or None."""
+    from torch_modulo.batch import MARKER_FOLDER
     from torch_modulo.batch.tasks import inside
 
     path = report.expanduser().resolve()
-    if path.is_dir():
+    if path.is_dir() or path == out:
         return f"--report {report} is a folder; give a file name"
+    if inside(path, out / MARKER_FOLDER):
+        return f"--report {report} is inside the folder of done markers {out / MARKER_FOLDER}; choose another file"
     if inside(path, source):
         return f"--report {report} is the input or inside the input folder {source}; inputs are never written"
     for task in tasks:
@@ -736,7 +739,7 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
     except OSError as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 1
-    if args.report is not None and (clash := _report_clash(Path(args.report), source, tasks)):
+    if args.report is not None and (clash := _report_clash(Path(args.report), source, out, tasks)):
         sub.error(clash)
     if not tasks:
         print(f"{prog}: error: no {wanted} found in {source}", file=sys.stderr)
