@@ -220,6 +220,11 @@ class TestExposuresKeepFloat64ThroughDtypeCasts:
     ``ModuloCapture(1/3).to(torch.bfloat16)`` held 0.33398, so a float32 radiance of 3000 read 233, not 232.
     """
 
+    def test_an_exposure_made_a_parameter_is_converted_like_one(self) -> None:
+        layer = tm.ModuloCapture(2.0)
+        layer.exposure = nn.Parameter(torch.tensor(2.0, dtype=torch.float64))  # to learn it: no longer a buffer
+        assert layer.to("cpu").half().exposure.dtype == torch.float16  # a parameter's usual conversion
+
     CASTS = {  # noqa: RUF012
         "half": lambda m: m.half(),
         "bfloat16": lambda m: m.bfloat16(),

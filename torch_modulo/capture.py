@@ -325,7 +325,7 @@ class _ExactExposures(nn.Module):
     _exact_buffers: tuple[str, ...] = ()
 
     def _apply(self, fn: Callable[[torch.Tensor], torch.Tensor], recurse: bool = True) -> Self:
-        kept = {name: self._buffers[name] for name in self._exact_buffers}
+        kept = {name: self._buffers.get(name) for name in self._exact_buffers}  # None once it is a Parameter
         super()._apply(fn, recurse)
         for name, old in kept.items():
             new = self._buffers.get(name)
