@@ -22,8 +22,8 @@ How ``simulate`` scales a scene and chooses its exposures (radiance in counts pe
   :func:`~torch_modulo.plan_exposures` for those stops, the bit depth and the noise model with ``longest=1`` (so
   that dark current is planned at the exposures captured; noise-free: the noise-free plan).
 - **Given exposures, several** (:func:`fit_scale`): the brightest value reads ``2**bits - 1`` at the shortest
-  exposure; under noise, the largest count whose noisy reading stays three standard deviations below the
-  rollover. That frame does not roll over, as multi-shot unwrapping needs.
+  exposure; under noise, the largest count whose noisy reading, with that exposure's dark counts, stays three
+  standard deviations below the rollover. That frame does not roll over, as multi-shot unwrapping needs.
 - **Given exposure, one** (a single-shot stack, :func:`fit_scale`): as protocol A of the single-shot benchmarks,
   the 99.9th percentile of the luminance (of all values for grey scenes) reads ``16 * 2**bits - 1`` counts (4095
   at 8 bits: 16 periods), so the frame wraps.

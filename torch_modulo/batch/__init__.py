@@ -11,8 +11,10 @@ What it guarantees
     - **Each input once.** :func:`discover` follows symbolic links but never enters a folder twice, so a link
       loop or a second link to the same file cannot repeat an input.
     - **Atomic outputs.** Jobs write files with :func:`torch_modulo.io.write_image` (temporary file, then
-      ``os.replace``) and folders with :func:`atomic_output_dir`, so a crash never leaves a half-written output
-      under its final name. What a killed run leaves behind (hidden temporaries) is removed by the next run.
+      ``os.replace``) and folders in a hidden temporary folder renamed into place (:func:`atomic_output_dir`, or
+      for frame stacks ``write_frames``' swap, which keeps the folder's other entries), so a crash never leaves a
+      half-written output under its final name. What a killed run leaves behind (hidden temporaries) is removed
+      by the next run.
     - **Resume.** After a task succeeds the engine writes a small *done marker* under
       ``OUT/.torch-modulo/<command>/`` (atomically) that records the options, the input's size and modification
       time, and the outputs. A task is *complete*, and skipped by the next run, when its marker exists, matches

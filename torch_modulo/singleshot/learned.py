@@ -43,6 +43,7 @@ __all__ = [
     "MOSAIC_CUTS",
     "STRIP",
     "TILE",
+    "TREE_PIXELS",
     "WEIGHTS",
     "EdgeJumpNet",
     "check_weights",
@@ -244,7 +245,7 @@ def _unflip(logp: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
 TILE = 768
 
 #: Rows of a tile whose jump logits, and the input of the network's last full-resolution stage, exist at once
-#: (:func:`predict_edges`; it does not change the result).
+#: (:func:`predict_edges`; the result is the same up to float rounding).
 STRIP = 64
 
 #: Cost of a jump outside ``-J .. J`` (and the most any jump costs): ``-log`` of a negligible probability.
@@ -739,7 +740,7 @@ def learned_confidence(
         return torch.ones_like(modulus)
     batch = modulus.detach().reshape(-1, *((1, 1, *modulus.shape)[-3:]))
     maps = [learned_k(image, bits, net, 0, augment, tile)[1] for image in batch]
-    out = torch.from_numpy(np.stack(maps)) if maps else torch.zeros(modulus.shape, dtype=torch.float64)
+    out = torch.from_numpy(np.stack(maps))
     return out.to(device=modulus.device, dtype=modulus.dtype).reshape(modulus.shape)
 
 
