@@ -209,6 +209,8 @@ class Batches(torch.utils.data.IterableDataset):
 def train(args: argparse.Namespace) -> dict[str, object]:
     if args.mosaic > 0 and args.crop % 2:
         raise SystemExit(f"--mosaic needs an even --crop (whole 2 x 2 cells); got {args.crop}")
+    if not args.gamma >= 1:  # [1/G, G] is the range: G below 1 would silently mean no power at all
+        raise SystemExit(f"--gamma must be >= 1 (1: off; G gives powers in [1/G, G]); got {args.gamma}")
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
@@ -327,7 +329,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--gamma",
         type=float,
         default=1.0,
-        help="scene crops' radiance raised to a power log-uniform in [1 / GAMMA, GAMMA] (1: off)",
+        help="scene crops' radiance raised to a power log-uniform in [1 / GAMMA, GAMMA] (>= 1; 1: off)",
     )
     ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
     ap.add_argument(

@@ -339,6 +339,8 @@ class TestTraining:
         args = train.parse_args(["--batch", "2", "--crop", "16", "--gamma", "1.5", "--procedural", "0"])
         wrapped, counts = train.make_batch([ramp], 2, 16, np.random.default_rng(0), args)
         assert torch.equal(wrapped, torch.remainder(counts, 256)) and float(counts.max()) >= 512
+        with pytest.raises(SystemExit, match="--gamma must be >= 1"):
+            train.train(train.parse_args(["--gamma", "0.67", "--steps", "1"]))
 
     def test_scene_exposure(self) -> None:
         """Exposed by the whole scene, a dark crop of a scene with a bright lamp does not roll over; exposed by
