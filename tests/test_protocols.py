@@ -18,6 +18,13 @@ class TestDownsampleArea:
         assert out.shape == (1, 2, 3)
         assert out[0, 0, 0].item() == pytest.approx(image[0, :3, :3].mean().item())
 
+    def test_a_side_shorter_than_the_factor_becomes_one_pixel(self) -> None:
+        strip = torch.rand(3, 3, 2000, dtype=torch.float64)  # factor 4 > 3 rows: it was cut to (3, 0, 500)
+        out = protocols.downsample_area(strip, 512)
+        assert out.shape == (3, 1, 500)
+        torch.testing.assert_close(out[:, 0, 0], strip[:, :, :4].mean(dim=(1, 2)))
+        assert protocols.downsample_area(strip.transpose(1, 2), 512).shape == (3, 500, 1)
+
     def test_no_change_when_small_enough(self) -> None:
         image = torch.rand(3, 4, 5)
         assert protocols.downsample_area(image, 5) is image
@@ -30,6 +37,15 @@ class TestDownsampleArea:
 
 
 class TestProtocols:
+    @pytest.mark.parametrize("bad", [math.nan, math.inf])
+    def test_non_finite_radiance_is_refused(self, bad: float) -> None:
+        image = torch.tensor([[[1.0, bad]]])
+        for protocol in (protocols.protocol_a, protocols.protocol_b):
+            with pytest.raises(ValueError, match="image must be finite"):
+                protocol(image)
+        with pytest.raises(TypeError, match="share must be a number"):
+            protocols.protocol_b(torch.rand(1, 2, 2), share="x")  # type: ignore[arg-type]
+
     def test_protocol_a_puts_the_percentile_at_the_peak(self) -> None:
         gen = torch.Generator().manual_seed(0)
         image = torch.rand(3, 64, 64, generator=gen, dtype=torch.float64) * 10
@@ -151,7 +167,14 @@ class TestScores:
 
 class TestSplit:
     def _folder(self, root: Path) -> Path:
-        for rel in ("polyhaven-cc0/a.exr", "openexr-images/b.exr", "hdr-samples/c.hdr", "qt-preview/d.hdr", "mine.exr"):
+        for rel in (
+            "polyhaven-cc0/a.exr",
+            "openexr-images/b.exr",
+            "hdr-samples/c.hdr",
+            "qt-preview/d.hdr",
+            "mine.exr",
+            "polyhaven-cc0/._a.exr",  # macOS's resource fork beside a scene: hidden, skipped
+        ):
             (root / rel).parent.mkdir(parents=True, exist_ok=True)
             (root / rel).write_bytes(b"")
         return root

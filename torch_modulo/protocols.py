@@ -136,7 +136,9 @@ def scene_split(path: str | os.PathLike[str], folder: str | os.PathLike[str]) ->
 
 
 def list_scenes(folder: str | os.PathLike[str], split: str = "all") -> list[Path]:
-    """Every .exr/.hdr file below ``folder``, sorted by path; with ``split``, only one side of the split.
+    """Every .exr/.hdr file below ``folder``, sorted by path; with ``split``, only one side of the split. Hidden files
+    (``.name.exr``, such as the ``._`` files macOS leaves) are skipped, as :class:`~torch_modulo.data.HDRFolder`
+    skips them.
 
     Args:
         folder: the scenes folder (:data:`DEV_SCENES` for the development scenes); missing gives an empty list.
@@ -146,7 +148,11 @@ def list_scenes(folder: str | os.PathLike[str], split: str = "all") -> list[Path
         ValueError: ``split`` is not one of :data:`SPLITS`.
     """
     split = check_choice(split, "split", SPLITS)
-    scenes = sorted(p for p in Path(folder).rglob("*") if p.suffix.lower() in HDR_SUFFIXES and p.is_file())
+    scenes = sorted(
+        p
+        for p in Path(folder).rglob("*")
+        if p.suffix.lower() in HDR_SUFFIXES and not p.name.startswith(".") and p.is_file()
+    )
     if split == "all":
         return scenes
     return [p for p in scenes if scene_split(p, folder) == split]
@@ -155,7 +161,8 @@ def list_scenes(folder: str | os.PathLike[str], split: str = "all") -> list[Path
 def downsample_area(image: torch.Tensor, max_side: int) -> torch.Tensor:
     """Average whole-pixel blocks by the smallest integer factor that brings the longer side to <= ``max_side``.
 
-    Rows and columns that do not fill a block are dropped.
+    Rows and columns that do not fill a block are dropped; a side shorter than the factor becomes one pixel, the
+    mean of all of it (a 3 x 2000 panorama strip at 512 becomes 1 x 500, not empty).
 
     Example:
         >>> downsample_area(torch.arange(16.0).view(1, 4, 4), 2)
@@ -169,8 +176,9 @@ def downsample_area(image: torch.Tensor, max_side: int) -> torch.Tensor:
     f = max(1, math.ceil(max(h, w) / max_side))
     if f == 1:
         return image
-    h2, w2 = h // f, w // f
-    return image[:, : h2 * f, : w2 * f].reshape(c, h2, f, w2, f).mean(dim=(2, 4))
+    fh, fw = min(f, h), min(f, w)
+    h2, w2 = h // fh, w // fw
+    return image[:, : h2 * fh, : w2 * fw].reshape(c, h2, fh, w2, fw).mean(dim=(2, 4))
 
 
 def load_scene(path: str | os.PathLike[str], max_side: int | None = 512) -> torch.Tensor:
@@ -205,6 +213,7 @@ def protocol_a(image: torch.Tensor, peak: float = 4095.0) -> torch.Tensor:
     check_image_shape(image, "image", min_dims=3, max_dims=3)
     if image.shape[0] not in (1, 3):
         raise ValueError(f"image must have 1 or 3 channels; got {image.shape[0]}")
+    check_finite(image, "image")
     peak = check_real(peak, "peak", positive=True)
     y = luminance(image[None])[0, 0]
     p = float(np.percentile(y.detach().cpu().double().numpy(), 99.9))
@@ -233,6 +242,8 @@ def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, pe
     """
     check_floating(image, "image")
     check_image_shape(image, "image", min_dims=3, max_dims=3)
+    check_finite(image, "image")
+    share = check_real(share, "share")
     if not 0.0 < share < 1.0:
         raise ValueError(f"share must be in (0, 1); got {share}")
     lo, hi = float(image.min()), float(image.max())
