@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from torch_modulo import protocols
+from torch_modulo._argtypes import positive_int
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -90,8 +91,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--data", type=Path, default=protocols.DEV_SCENES, help="folder of HDR scenes (default: %(default)s)"
     )
-    parser.add_argument("--limit", type=int, default=None, help="use the first N scenes only")
-    parser.add_argument("--repeat", type=int, default=3, help="runs per measurement; medians are reported")
+    parser.add_argument("--limit", type=positive_int, default=None, help="use the first N scenes only")
+    parser.add_argument("--repeat", type=positive_int, default=3, help="runs per measurement; medians are reported")
     parser.add_argument("--workers", default="1,2", help="worker counts to compare (default: %(default)s)")
     parser.add_argument(
         "--single-limit",

@@ -47,6 +47,7 @@ from bench_single import GROUPS, select_scenes  # the sibling script: the same s
 
 import torch_modulo as tm
 from torch_modulo import protocols
+from torch_modulo._argtypes import nonnegative_int, positive_int
 from torch_modulo.cfa import CFA_PATTERNS, DEMOSAIC_METHODS, merge_planes, split_planes
 from torch_modulo.singleshot import METHODS
 
@@ -169,8 +170,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--data", type=Path, default=protocols.DEV_SCENES, help="scenes folder (default: %(default)s)")
     ap.add_argument("--scenes", nargs="+", default=None, help="only these scenes (paths relative to --data)")
     ap.add_argument("--split", default="all", choices=protocols.SPLITS, help="only one side of the split")
-    ap.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0: all)")
-    ap.add_argument("--scale", type=int, default=512, help="longest side after downsampling")
+    ap.add_argument("--max-scenes", type=nonnegative_int, default=0, help="only the first N scenes (0: all)")
+    ap.add_argument("--scale", type=positive_int, default=512, help="longest side after downsampling")
     ap.add_argument("--cfa", default="RGGB", choices=CFA_PATTERNS)
     ap.add_argument(
         "--method",
@@ -178,7 +179,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="unwrap_single method with options (name:key=value,...; default: unwrap_single's, %(default)s)",
     )
     ap.add_argument("--demosaic", default=DEMOSAIC_METHODS[0], choices=DEMOSAIC_METHODS)
-    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--workers", type=positive_int, default=1)
     return ap.parse_args(argv)
 
 

@@ -29,6 +29,7 @@ from collections.abc import Callable
 import torch
 
 import torch_modulo as tm
+from torch_modulo._argtypes import positive_int
 
 
 def _sync(device: torch.device) -> None:
@@ -83,7 +84,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--shape", type=int, nargs=4, default=[8, 3, 1024, 1024], metavar=("B", "C", "H", "W"))
     parser.add_argument("--exposures", type=float, nargs="+", default=[1.0, 200.0, 40000.0])
     parser.add_argument("--bits", type=int, default=8)
-    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--repeats", type=positive_int, default=7)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     parser.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")

@@ -24,6 +24,7 @@ import torch
 
 import torch_modulo as tm
 from torch_modulo import protocols
+from torch_modulo._argtypes import positive_int
 
 
 def load(path: Path, size: int) -> torch.Tensor:
@@ -41,11 +42,11 @@ def exact_share(radiance: torch.Tensor, taus: list[float], bits: int, method: st
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=protocols.DEV_SCENES)
-    parser.add_argument("--size", type=int, default=512)
+    parser.add_argument("--size", type=positive_int, default=512)
     parser.add_argument("--bits", type=int, default=8)
     parser.add_argument("--exposures", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--limit", type=int, default=None, help="only the first N scenes")
+    parser.add_argument("--limit", type=positive_int, default=None, help="only the first N scenes")
     args = parser.parse_args(argv)
 
     files = protocols.list_scenes(args.data)[: args.limit]

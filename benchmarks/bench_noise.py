@@ -35,6 +35,7 @@ import torch
 
 import torch_modulo as tm
 from torch_modulo import protocols
+from torch_modulo._argtypes import nonnegative_int
 from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
 
 NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": NoiseModel(16.0, 16.0)}
@@ -116,7 +117,7 @@ def summarise(rows: list[dict[str, object]], noise_name: str) -> dict[str, objec
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=Path, default=protocols.DEV_SCENES)
-    parser.add_argument("--limit", type=int, default=0, help="only the first N scenes (0: all)")
+    parser.add_argument("--limit", type=nonnegative_int, default=0, help="only the first N scenes (0: all)")
     parser.add_argument("--noise", nargs="+", default=list(NOISES), choices=list(NOISES))
     parser.add_argument("--tolerance", type=float, default=1.2, help="plan_exposures tolerance")
     parser.add_argument("--min-ratio", type=float, default=1.5, help="plan_exposures min_ratio")

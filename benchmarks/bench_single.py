@@ -49,6 +49,7 @@ import numpy as np
 import torch
 
 from torch_modulo import protocols
+from torch_modulo._argtypes import nonnegative_int, positive_int
 from torch_modulo.singleshot import unwrap_energy, unwrap_single
 
 BITS = 8
@@ -251,11 +252,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     ap.add_argument("--scenes", nargs="+", default=None, help="only these scenes (paths relative to --data)")
     ap.add_argument("--split", default="all", choices=protocols.SPLITS, help="only one side of the split")
-    ap.add_argument("--max-scenes", type=int, default=0, help="only the first N scenes (0: all)")
-    ap.add_argument("--scale", type=int, default=512, help="longest side after downsampling")
-    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--max-scenes", type=nonnegative_int, default=0, help="only the first N scenes (0: all)")
+    ap.add_argument("--scale", type=positive_int, default=512, help="longest side after downsampling")
+    ap.add_argument("--workers", type=positive_int, default=1)
     ap.add_argument("--device", type=torch.device, default=torch.device("cpu"), help="cpu (default) or cuda")
-    ap.add_argument("--repeat", type=int, default=1, help="time each run this many times, keep the median")
+    ap.add_argument("--repeat", type=positive_int, default=1, help="time each run this many times, keep the median")
     ap.add_argument("--energy", action="store_true", help="also report energies (always on when paper runs)")
     ap.add_argument("--memory", action="store_true", help="synthetic speed/memory scaling instead of scenes")
     ap.add_argument("--memory-sizes", nargs="+", type=float, default=[0.25, 1.0, 4.0])

@@ -28,6 +28,7 @@ import torch
 
 from research.common import DATA
 from torch_modulo import protocols
+from torch_modulo._argtypes import nonnegative_int, positive_int
 
 CACHE = Path(os.environ.get("TM_RESEARCH_CACHE", "/tmp/tm_research_cache"))
 
@@ -128,9 +129,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--methods", nargs="+", default=["natural"])
-    ap.add_argument("--protocols", nargs="+", default=["A", "B"])
-    ap.add_argument("--max-scenes", type=int, default=0)
-    ap.add_argument("--scale", type=int, default=512, help="longest side after downsampling")
+    ap.add_argument("--protocols", nargs="+", default=["A", "B"], choices=["A", "B"])
+    ap.add_argument("--max-scenes", type=nonnegative_int, default=0)
+    ap.add_argument("--scale", type=positive_int, default=512, help="longest side after downsampling")
     ap.add_argument("--split", choices=["all", "tune", "held"], default="all")
     ap.add_argument("--only", nargs="*", default=[], help="substrings of scene names to keep")
     ap.add_argument("--opt", nargs="*", default=[], help="key=value options for the natural method")

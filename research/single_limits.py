@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from research.common import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores, select_scenes
+from torch_modulo._argtypes import nonnegative_int, positive_int
 from torch_modulo.singleshot import unwrap_confidence
 from torch_modulo.singleshot.anchor import anchor_k
 from torch_modulo.singleshot.grid import (
@@ -152,8 +153,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--protocols", nargs="+", default=["A", "B"], choices=["A", "B"])
     parser.add_argument("--method", default="guided", help="guided (default), quality, fast, paper or skimage")
-    parser.add_argument("--scale", type=int, default=512)
-    parser.add_argument("--max-scenes", type=int, default=0)
+    parser.add_argument("--scale", type=positive_int, default=512)
+    parser.add_argument("--max-scenes", type=nonnegative_int, default=0)
     parser.add_argument("--priors", action="store_true", help="also compare truncated-linear prior energies")
     args = parser.parse_args()
     scenes = select_scenes(args.data, args.max_scenes)

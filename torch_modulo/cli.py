@@ -26,6 +26,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from torch_modulo._argtypes import nonnegative_int as _nonnegative_int
+from torch_modulo._argtypes import parse as _parse
+from torch_modulo._argtypes import positive_int as _positive_int
 from torch_modulo.cfa import CFA_PATTERNS
 from torch_modulo.pipeline import DEFAULT_NOISE, NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
 
@@ -50,21 +53,6 @@ _NOISE_KEYS = {
 # ------------------------------------------------------------------------------------------ option types
 
 
-def _parse(text: str, cast: type[int] | type[float], kind: str) -> Any:
-    """``cast(text)``, or the usage error ``expected <kind>; got '<text>'``."""
-    try:
-        return cast(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {kind}; got {text!r}") from None
-
-
-def _positive_int(text: str) -> int:
-    value = _parse(text, int, "a whole number")
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number >= 1; got {value}")
-    return value
-
-
 def _ratio(text: str) -> float:
     value = _parse(text, float, "a number")
     if not 1.0 < value:
@@ -76,13 +64,6 @@ def _bits(text: str) -> int:
     value = _positive_int(text)
     if value > 24:
         raise argparse.ArgumentTypeError(f"expected a bit depth from 1 to 24; got {value}")
-    return value
-
-
-def _nonnegative_int(text: str) -> int:
-    value = _parse(text, int, "a whole number")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0; got {value}")
     return value
 
 
