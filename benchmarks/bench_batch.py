@@ -102,10 +102,20 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--method", "--solver", default="fast", help="unwrap --single method (default: %(default)s)")
     parser.add_argument(
-        "--commands", default="tonemap,simulate,unwrap,single", help="which commands to time (default: %(default)s)"
+        "--commands",
+        type=_commands,
+        default="tonemap,simulate,unwrap,single",
+        help="which commands to time, comma-separated, of tonemap, simulate, unwrap, single (default: %(default)s)",
     )
     parser.add_argument("--json", type=Path, default=None, help="also write the summary here")
     return parser.parse_args(argv)
+
+
+def _commands(text: str) -> str:
+    unknown = [c for c in text.split(",") if c not in ("tonemap", "simulate", "unwrap", "single")]
+    if unknown or not text:
+        raise argparse.ArgumentTypeError(f"expected some of tonemap, simulate, unwrap, single; got {text!r}")
+    return text
 
 
 def _plans(wanted: list[str], tmp_path: Path, args: argparse.Namespace) -> list[tuple[str, list[str]]]:

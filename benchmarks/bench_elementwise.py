@@ -29,6 +29,7 @@ from collections.abc import Callable
 import torch
 
 import torch_modulo as tm
+from torch_modulo._argtypes import device as device_arg
 from torch_modulo._argtypes import positive_int
 
 
@@ -85,15 +86,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--exposures", type=float, nargs="+", default=[1.0, 200.0, 40000.0])
     parser.add_argument("--bits", type=int, default=8)
     parser.add_argument("--repeats", type=positive_int, default=7)
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", type=device_arg, default=torch.device("cpu"))
     parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     parser.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     args = parser.parse_args(argv)
 
-    device, dtype = torch.device(args.device), getattr(torch, args.dtype)
+    where, dtype = args.device, getattr(torch, args.dtype)
     gen = torch.Generator().manual_seed(0)
     # Radiance spanning ~16 stops so that the longest exposure rolls over many times.
-    radiance = torch.exp2(torch.rand(args.shape, generator=gen) * 16 - 15).to(device, dtype)
+    radiance = torch.exp2(torch.rand(args.shape, generator=gen) * 16 - 15).to(where, dtype)
     taus = args.exposures
     moduli = torch.stack([tm.capture_modulo(radiance, t, args.bits) for t in taus], dim=1)
     frames = torch.stack([tm.capture_intensity(radiance, t, args.bits) for t in taus], dim=1)
@@ -112,14 +113,14 @@ def main(argv: list[str] | None = None) -> None:
     ]
     if not args.no_compile:
         rows += compiled_rows(radiance, moduli, counts, taus, args.bits, args.repeats)
-    print(f"shape {tuple(args.shape)} {args.dtype} on {device}, {torch.get_num_threads()} threads, M = {len(taus)}")
+    print(f"shape {tuple(args.shape)} {args.dtype} on {where}, {torch.get_num_threads()} threads, M = {len(taus)}")
     print(f"{'operation':<30}{'ms':>10}{'clone ms':>10}{'x clone':>9}")
     for row in rows:
         print(f"{row['op']:<30}{row['ms']:>10.1f}{row['clone_ms']:>10.1f}{row['ratio']:>9.2f}")
     summary = {
         "shape": args.shape,
         "dtype": args.dtype,
-        "device": str(device),
+        "device": str(where),
         "threads": torch.get_num_threads(),
         "exposures": taus,
         "ratios_to_clone": {row["op"]: round(float(row["ratio"]), 3) for row in rows},

@@ -49,6 +49,7 @@ import numpy as np
 import torch
 
 from torch_modulo import protocols
+from torch_modulo._argtypes import device as device_arg
 from torch_modulo._argtypes import nonnegative_int, positive_int
 from torch_modulo.singleshot import unwrap_energy, unwrap_single
 
@@ -255,14 +256,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--max-scenes", type=nonnegative_int, default=0, help="only the first N scenes (0: all)")
     ap.add_argument("--scale", type=positive_int, default=512, help="longest side after downsampling")
     ap.add_argument("--workers", type=positive_int, default=1)
-    ap.add_argument("--device", type=torch.device, default=torch.device("cpu"), help="cpu (default) or cuda")
+    ap.add_argument("--device", type=device_arg, default=torch.device("cpu"), help="cpu (default) or cuda")
     ap.add_argument("--repeat", type=positive_int, default=1, help="time each run this many times, keep the median")
     ap.add_argument("--energy", action="store_true", help="also report energies (always on when paper runs)")
     ap.add_argument("--memory", action="store_true", help="synthetic speed/memory scaling instead of scenes")
     ap.add_argument("--memory-sizes", nargs="+", type=float, default=[0.25, 1.0, 4.0])
     args = ap.parse_args(argv)
-    if args.device.type == "cuda" and not torch.cuda.is_available():
-        ap.error("--device cuda asked for, but torch.cuda.is_available() is False")
     return args
 
 

@@ -26,6 +26,8 @@ from pathlib import Path
 import torch
 
 import torch_modulo.tonemap as tmo
+from torch_modulo._argtypes import device as device_arg
+from torch_modulo._argtypes import positive_int
 
 GLOBAL_OPERATORS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "gamma": lambda x: tmo.tonemap_gamma(x),
@@ -147,18 +149,13 @@ def _write_json(path: Path, summary: dict[str, object]) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=_size, default=(8, 3, 1024, 1024), help="B,C,H,W (default 8,3,1024,1024)")
-    parser.add_argument("--repeats", type=int, default=7, help="timed repeats per operator (default 7)")
-    parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    parser.add_argument("--repeats", type=positive_int, default=7, help="timed repeats per operator (default 7)")
+    parser.add_argument("--device", type=device_arg, default=torch.device("cpu"), help="cpu or cuda (default cpu)")
     parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     parser.add_argument("--clahe", action="store_true", help="also time CLAHE (a local operator, not in the goal)")
     parser.add_argument("--json", type=Path, default=None, help="also write the JSON summary to this file")
     args = parser.parse_args(argv)
-    if args.repeats < 1:
-        parser.error(f"--repeats must be >= 1; got {args.repeats}")
-    device = torch.device(args.device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        parser.error("--device cuda asked for, but torch.cuda.is_available() is False")
-    summary = bench(args.size, device, getattr(torch, args.dtype), args.repeats, args.clahe)
+    summary = bench(args.size, args.device, getattr(torch, args.dtype), args.repeats, args.clahe)
     _print_table(summary)
     print(json.dumps(summary))
     if args.json is not None:

@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-__all__ = ["nonnegative_int", "parse", "positive_int"]
+import torch
+
+__all__ = ["device", "nonnegative_int", "parse", "positive_int"]
 
 
 def parse(text: str, cast: type[int] | type[float], kind: str) -> Any:
@@ -38,4 +40,15 @@ def nonnegative_int(text: str) -> int:
     value = parse(text, int, "a whole number")
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a number >= 0; got {value}")
+    return value
+
+
+def device(text: str) -> torch.device:
+    """A torch device this process can use (``cpu``, ``cuda``, ``cuda:1``, ...)."""
+    try:
+        value = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a device such as cpu or cuda; got {text!r}") from None
+    if value.type == "cuda" and not torch.cuda.is_available():
+        raise argparse.ArgumentTypeError(f"{text!r} asked for, but torch.cuda.is_available() is False")
     return value
