@@ -161,6 +161,12 @@ class TestHDRFolder:
 
 
 class TestRandomModuloCapture:
+    def test_empty_batch(self) -> None:
+        # kornia's base class raised "cannot reshape tensor of 0 elements" on a batch of 0
+        aug = RandomModuloCapture(exposure=(1.0, 4.0), bits=8)
+        out = aug(torch.rand(0, 3, 8, 8))
+        assert out.shape == (0, 3, 8, 8) and aug.exposure is not None and aug.exposure.shape == (0,)
+
     def test_smoke_equals_capture(self) -> None:
         torch.manual_seed(0)
         radiance = torch.rand(5, 3, 8, 8) * 1000  # far outside [0, 1]: nothing may clamp it

@@ -304,6 +304,14 @@ class RandomModuloCapture(IntensityAugmentationBase2D):
             return capture_modulo(input, tau, self.bits, straight_through=self.straight_through)
         return simulate_capture(input, tau.view(-1, 1), self.bits, self.noise)[:, 0]
 
+    def forward(
+        self, input: torch.Tensor, params: dict[str, torch.Tensor] | None = None, **kwargs: Any
+    ) -> torch.Tensor:
+        if input.dim() == 4 and input.shape[0] == 0 and params is None:  # an empty batch: nothing to draw or capture
+            self._params = {"exposure": torch.empty(0)}
+            return input.clone()
+        return super().forward(input, params, **kwargs)
+
     @property
     def exposure(self) -> torch.Tensor | None:
         """The (B,) exposures drawn by the last call, or None before the first."""
