@@ -47,11 +47,12 @@ BITS = 8
 PERIOD = 2**BITS
 
 
-def load_train_scenes(max_side: int) -> list[torch.Tensor]:
-    """The CC0/BSD training scenes as (3, H, W) float32 radiance (grey scenes repeated), longer side <= max_side."""
+def load_train_scenes(max_side: int, folder: Path = protocols.DEV_SCENES) -> list[torch.Tensor]:
+    """The CC0/BSD training scenes below ``folder`` (its polyhaven-cc0 and openexr-images folders) as (3, H, W)
+    float32 radiance (grey scenes repeated), longer side <= max_side."""
     scenes = []
-    for path in protocols.list_scenes(protocols.DEV_SCENES, split="train"):
-        assert protocols.scene_split(path, protocols.DEV_SCENES) == "train"
+    for path in protocols.list_scenes(folder, split="train"):
+        assert protocols.scene_split(path, folder) == "train"
         image = protocols.load_scene(path, max_side).float()
         if image.shape[0] == 1:
             image = image.expand(3, -1, -1).contiguous()
@@ -214,7 +215,9 @@ def train(args: argparse.Namespace) -> dict[str, object]:
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
-    scenes = load_train_scenes(args.scene_side)
+    scenes = load_train_scenes(args.scene_side, args.data)
+    if not scenes:
+        raise SystemExit(f"no training scenes under {args.data} (its polyhaven-cc0 and openexr-images folders)")
     print(f"loaded {len(scenes)} training scenes", flush=True)
     references = [exposure_references(s) for s in scenes] if args.scene_exposure > 0 else []
     net = EdgeJumpNet(
@@ -332,6 +335,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="scene crops' radiance raised to a power log-uniform in [1 / GAMMA, GAMMA] (>= 1; 1: off)",
     )
     ap.add_argument("--scene-side", type=int, default=1024, help="scenes are loaded at this longer side")
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=protocols.DEV_SCENES,
+        help="scenes folder; only its polyhaven-cc0 and openexr-images folders are read (default: the dev scenes)",
+    )
     ap.add_argument(
         "--scales", type=int, nargs="+", default=[1, 2, 2], help="area-averaging factors crops are drawn from"
     )

@@ -321,11 +321,28 @@ class TestTraining:
         a, b = [batch for batch, _ in zip(loader, range(2), strict=False)]
         again = next(iter(torch.utils.data.DataLoader(train.Batches([ramp], args, []), batch_size=None, num_workers=2)))
         assert torch.equal(a[1], again[1]) and not torch.equal(a[1], b[1])  # per-worker seeds: repeatable, distinct
-        train.load_train_scenes = lambda side: [ramp]
+        train.load_train_scenes = lambda side, folder: [ramp]
         out = tmp_path / "run"
         argv = ["--out", str(out), "--steps", "2", "--crop", "16", "--batch", "1", "--width", "4", "--threads", "1"]
         summary = train.train(train.parse_args([*argv, "--workers", "2", "--log-every", "1"]))
         assert summary["steps"] == 2 and load_model(out / "edge_jump.pt").config["width"] == 4
+
+    def test_data_folder(self, tmp_path: Path) -> None:
+        """``--data``: the training scenes of another folder (a copy of the CC0/BSD ones, say), never its
+        validation scenes."""
+        from torch_modulo.io import write_image
+
+        train = load_script(TRAIN_SCRIPT)
+        ramp = torch.linspace(0.01, 1.0, 48).repeat(3, 40, 1) ** 4
+        for rel, image in (("polyhaven-cc0/a.exr", ramp), ("hdr-samples/b.exr", ramp.flip(-1))):
+            (tmp_path / "data" / rel).parent.mkdir(parents=True)
+            write_image(tmp_path / "data" / rel, image)
+        scenes = train.load_train_scenes(64, tmp_path / "data")
+        assert len(scenes) == 1 and torch.allclose(scenes[0], ramp, rtol=1e-3)  # EXR half precision
+        argv = ["--out", str(tmp_path / "run"), "--steps", "1", "--crop", "16", "--batch", "1", "--width", "4"]
+        assert train.train(train.parse_args([*argv, "--data", str(tmp_path / "data")]))["steps"] == 1
+        with pytest.raises(SystemExit, match="no training scenes under"):
+            train.train(train.parse_args([*argv, "--data", str(tmp_path / "empty")]))
 
     def test_radiance_power(self) -> None:
         """``--gamma``: a crop's stops scale by the power, its shading stays multiplicative, and batches still wrap
