@@ -265,6 +265,8 @@ def _add_folder_options(sub: argparse.ArgumentParser, what_in: str, what_out: st
 
 
 def _add_demo(commands: Any) -> None:
+    from torch_modulo.singleshot import METHODS  # the registry's names: a new method is a choice at once
+
     demo = commands.add_parser(
         "demo",
         help="run the whole pipeline on one scene and write the results",
@@ -290,7 +292,7 @@ def _add_demo(commands: Any) -> None:
         action=_MethodOption,
         dest="method",
         default="learned",
-        choices=("learned", "guided", "fast", "paper"),
+        choices=METHODS,
         help="single-shot method of unwrap_single (default: %(default)s; fast and paper: the paper's graph cut; "
         "--solver is its deprecated former name)",
     )
@@ -472,7 +474,8 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         dest="method",
         default=None,
         metavar="METHOD",
-        help="multi shot: the rule, robust (default; exact for every ratio up to 2^bits without noise, and the one "
+        help="multi shot: the rule, robust (default; exact without noise for ratios up to 2^bits - 1 and integer "
+        "ratios up to 2^bits, and the one "
         "that decodes with a noise model) or paper (Eq. 6 as printed, noise-free); with --single: the method of "
         "unwrap_single, learned (the shipped network's rollover jumps, decoded exactly; the default), guided (path "
         "following, channels together), fast (the paper's graph cut on a cheaper schedule), paper (Eqs. 3-5 from "

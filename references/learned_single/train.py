@@ -1,4 +1,4 @@
-"""Train the edge-jump network of ``unwrap_single(method="learned")`` and write its weights and model card.
+"""Train the edge-jump network of ``unwrap_single(method="learned")``: writes its weights and a summary of the run.
 
 One command, seeded:
 
