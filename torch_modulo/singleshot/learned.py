@@ -465,7 +465,7 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
     """
     from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
-    from torch_modulo.singleshot.pathfollow import _forest_graph, _pair_graph
+    from torch_modulo.singleshot.pathfollow import _kruskal_graph
 
     m = np.asarray(modulus, dtype=np.int64)
     h, w = m.shape
@@ -479,12 +479,7 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
         right = np.add(cost[0, r0:r1, :-1], 1e-9, dtype=np.float64)
         return right, np.add(cost[1, r0 : r1 - 1, :], 1e-9, dtype=np.float64)
 
-    if n > TREE_PIXELS:  # the pairs of the blocks' own spanning forests, which hold a tree of the whole image
-        graph = _forest_graph(pair_weights, h, w, TREE_PIXELS)
-    else:
-        graph = _pair_graph(*pair_weights(0, h))
-    tree = minimum_spanning_tree(graph, overwrite=True)
-    del graph
+    tree = minimum_spanning_tree(_kruskal_graph(pair_weights, h, w, TREE_PIXELS), overwrite=True)
     # The reference region, the largest one joined by sure pairs, is joined by the tree's own sure pairs: a minimum
     # spanning tree's path between two pixels has the smallest largest cost of all paths.
     sure = tree.copy()

@@ -200,6 +200,17 @@ def _forest_graph(
     return csr_matrix((data, indices, indptr), shape=(n, n))
 
 
+def _kruskal_graph(
+    pair_weights: Callable[[int, int], tuple[np.ndarray, np.ndarray]], h: int, w: int, tile_pixels: int = 0
+) -> csr_matrix:
+    """The pairs a minimum spanning tree of the (H, W) grid is taken from, with ``pair_weights`` as for
+    :func:`_forest_graph`: every pair (:func:`_pair_graph`) up to ``tile_pixels`` pixels (or always with 0), above
+    the pairs that survive the blocks' own spanning forests (:func:`_forest_graph`)."""
+    if tile_pixels and h * w > tile_pixels:
+        return _forest_graph(pair_weights, h, w, tile_pixels)
+    return _pair_graph(*pair_weights(0, h))
+
+
 def _reliability_graph(difficulty: np.ndarray, tile_pixels: int = 0) -> csr_matrix:
     """The 4-neighbour pairs of Herraez's ``D`` with their weights, as a CSR matrix for Kruskal.
 
@@ -207,11 +218,7 @@ def _reliability_graph(difficulty: np.ndarray, tile_pixels: int = 0) -> csr_matr
     survive the blocks' own spanning forests (:func:`_forest_graph`), which hold a minimum spanning tree of the
     same graph.
     """
-    h, w = difficulty.shape
-    if tile_pixels and h * w > tile_pixels:
-        return _forest_graph(lambda r0, r1: _pair_weights(difficulty[r0:r1]), h, w, tile_pixels)
-    right, down = _pair_weights(difficulty)
-    return _pair_graph(right, down)
+    return _kruskal_graph(lambda r0, r1: _pair_weights(difficulty[r0:r1]), *difficulty.shape, tile_pixels)
 
 
 def _tree_parents(graph: csr_matrix, root: int = 0) -> np.ndarray:
