@@ -824,8 +824,8 @@ def solve_learned_tensor(moduli: torch.Tensor, spec: Any) -> tuple[torch.Tensor,
     if len(moduli) == 1:  # no copy
         k, confidence = _learned_ks(moduli[0], spec)
         return torch.from_numpy(k)[None], torch.from_numpy(confidence)[None]
-    k = torch.zeros(moduli.shape, dtype=torch.int64)
-    confidence = torch.ones(moduli.shape, dtype=torch.float64)
+    k = torch.empty(moduli.shape, dtype=torch.int64)
+    confidence = torch.empty(moduli.shape, dtype=torch.float64)
     for i, image in enumerate(moduli):  # filled image by image: no list of the batch's arrays, no stacked copy
         ki, ci = _learned_ks(image, spec)
         k[i], confidence[i] = torch.from_numpy(ki), torch.from_numpy(ci)
