@@ -9,7 +9,7 @@ from torch import nn
 
 from torch_modulo._checks import check_bits, check_choice, check_modulus
 from torch_modulo.multishot.noisy import weighted_estimate
-from torch_modulo.multishot.stack import sort_stack, stack_exposures
+from torch_modulo.multishot.stack import sort_stack, stack_exposures, wide_dtype
 from torch_modulo.noise import NoiseModel, as_noise_model
 
 __all__ = ["IntensityMerge", "merge_intensity"]
@@ -65,8 +65,7 @@ def merge_intensity(
     top = float(2**bits - 1)
     noise = as_noise_model(noise)
     if noise is not None:  # in float64 (float32 on devices without it), as unwrap_multi decodes
-        wide = torch.float64 if frames.device.type in ("cpu", "cuda") else torch.float32
-        out = _merge_noisy(stack.to(wide), tau, top, noise).to(frames.dtype)
+        out = _merge_noisy(stack.to(wide_dtype(frames.device)), tau, top, noise).to(frames.dtype)
         return out[0] if unbatched else out
     # Half precision is merged in float32: in float16 an exposure of 65536 is inf, which made every estimate of
     # that frame 0 (and 0 * inf a NaN). float32 and float64 stay as they are.

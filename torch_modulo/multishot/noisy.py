@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import torch
 
+from torch_modulo.multishot.stack import wide_dtype
 from torch_modulo.noise import NoiseModel
 
 __all__ = ["decode_noisy", "weighted_estimate"]
@@ -45,7 +46,7 @@ def decode_noisy(
         variance from the noise model, and the number of frames decoded per pixel (the shortest is always used).
         Radiance and variance are float64 (float32 on devices without float64).
     """
-    work = torch.float64 if frames.device.type in ("cpu", "cuda") else torch.float32
+    work = wide_dtype(frames.device)
     x = frames.to(work)
     t = tau.to(device=x.device, dtype=work).unsqueeze(-1)  # (B, M, 1)
     m = x.shape[1]

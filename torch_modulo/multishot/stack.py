@@ -8,7 +8,13 @@ import torch
 
 from torch_modulo._checks import check_floating, exposure_tensor
 
-__all__ = ["neighbour_ratios", "sort_stack", "stack_exposures"]
+__all__ = ["neighbour_ratios", "sort_stack", "stack_exposures", "wide_dtype"]
+
+
+def wide_dtype(device: torch.device) -> torch.dtype:
+    """The dtype the noise-aware decoding and merge compute in: float64 where the device has it (CPU, CUDA), else
+    float32 (MPS, for one)."""
+    return torch.float64 if device.type in ("cpu", "cuda") else torch.float32
 
 
 def stack_exposures(
