@@ -302,3 +302,29 @@ def test_tiling_is_importable_from_capture_and_tiling() -> None:
     tiles = column_tiles(CPU_TILE * 3 + 5, 1)
     assert tiles[0] == slice(0, CPU_TILE) and tiles[-1].stop == CPU_TILE * 3 + 5
     assert column_tiles(0, 4) == []
+
+
+@pytest.mark.parametrize("capture", [tm.capture_modulo, tm.capture_intensity])
+@pytest.mark.parametrize("exposure", [torch.empty(0), torch.empty(0, 1, 1, 1)])
+def test_empty_batch_with_one_exposure_per_item(capture: Callable, exposure: torch.Tensor) -> None:
+    out = capture(torch.empty(0, 3, 4, 4), exposure, 8)
+    assert out.shape == (0, 3, 4, 4)
+
+
+@pytest.mark.parametrize("capture", [tm.capture_modulo, lambda x, t, b: tm.capture_stack(x, [1.0, t], b)])
+def test_float16_counts_beyond_its_range_are_refused_not_nan(capture: Callable) -> None:
+    x = torch.full((1, 1, 2, 2), 1000.0, dtype=torch.float16)
+    with pytest.raises(ValueError, match=r"counts reach 100000, beyond the largest torch.float16"):
+        capture(x, 100.0, 8)
+    with pytest.warns(UserWarning, match="low bits"):  # inside the range: inexact, but a modulus
+        out = capture(x, 10.0, 8)
+    assert bool(torch.isfinite(out).all())
+    assert torch.equal(tm.capture_intensity(x, 100.0, 8), torch.full_like(x, 255.0))  # clipping never overflows
+
+
+def test_nested_list_exposures_are_a_batch_of_stacks() -> None:
+    x = torch.rand(2, 1, 4, 4) * 50
+    nested = tm.capture_stack(x, [[1.0, 4.0], [2.0, 8.0]], 8)
+    assert torch.equal(nested, tm.capture_stack(x, torch.tensor([[1.0, 4.0], [2.0, 8.0]]), 8))
+    with pytest.raises(TypeError, match=r"exposures must be a sequence of numbers .*\[\[1.0, 4.0\], \[2.0\]\]"):
+        tm.capture_stack(x, [[1.0, 4.0], [2.0]], 8)

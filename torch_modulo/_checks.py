@@ -429,11 +429,12 @@ def exposure_tensor(
             raise TypeError(f"{name} must hold real numbers; got {exposure!r}") from None
         return exposure_tensor(array, like, name)
     elif isinstance(exposure, Sequence) and not isinstance(exposure, str):
-        try:
-            values = [float(v) for v in exposure]
-        except (TypeError, ValueError):
-            raise TypeError(f"{name} must be a sequence of numbers; got {exposure!r}") from None
-        tau = torch.tensor(values, device=like.device, dtype=like.dtype)
+        try:  # nested sequences too: (B, M) exposures as a list of lists
+            tau = torch.tensor(exposure, dtype=torch.float64).to(device=like.device, dtype=like.dtype)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(
+                f"{name} must be a sequence of numbers (or of equal-length sequences of numbers); got {exposure!r}"
+            ) from None
     else:
         raise TypeError(f"{name} must be a positive number, a sequence of numbers or a tensor; got {exposure!r}")
     if _VALIDATION and tau.numel():

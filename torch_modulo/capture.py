@@ -36,6 +36,7 @@ Compilation:
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable
 from typing import NamedTuple, Self
@@ -101,7 +102,7 @@ def _as_rows(x: torch.Tensor, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Te
     if tau.dim() == 0:
         return x.view(1, -1), float(tau)
     if x.dim() >= 1 and tau.numel() == x.shape[0] and tau.shape == (x.shape[0],) + (1,) * (x.dim() - 1):
-        return x.view(x.shape[0], -1), tau.reshape(-1, 1)
+        return x.view(x.shape[0], math.prod(x.shape[1:])), tau.reshape(-1, 1)  # not -1: an empty batch has 0 rows
     return None
 
 
@@ -217,11 +218,17 @@ def _counts_autograd(y: torch.Tensor, period: float, straight_through: bool, cli
 
 
 def _warn_inexact_counts(peak: float, tau: torch.Tensor, dtype: torch.dtype, stacklevel: int = 4) -> None:
-    """Warn when the largest count ``floor(peak * max(tau))`` is beyond the integers ``dtype`` holds exactly."""
+    """Warn when the largest count ``floor(peak * max(tau))`` is beyond the integers ``dtype`` holds exactly; raise
+    when it is beyond the dtype's range (float16 past 65504)."""
     limit = MAX_BITS.get(dtype)
     if limit is None or peak == 0.0 or not tau.numel():
         return
     top = peak * float(tau.detach().max())
+    if top > torch.finfo(dtype).max:  # the product overflows: its modulus would be NaN, not merely inexact
+        raise ValueError(
+            f"counts reach {top:.6g}, beyond the largest {dtype} ({torch.finfo(dtype).max:.6g}): use float32 or "
+            "float64 radiance"
+        )
     if top >= 2.0**limit + 1:
         warnings.warn(
             f"counts reach {top:.0f}, beyond what {dtype} holds exactly (2**{limit} = {2**limit}): their low bits, "
@@ -253,7 +260,8 @@ def capture_modulo(
 
     Raises:
         TypeError: ``radiance`` is not a floating tensor, ``bits`` not an integer or ``straight_through`` not a bool.
-        ValueError: negative, NaN or infinite radiance, a bad exposure, or more bits than the dtype holds.
+        ValueError: negative, NaN or infinite radiance, a bad exposure, more bits than the dtype holds, or counts
+            beyond the dtype's range (float16: 65504).
 
     Warns:
         UserWarning: the counts go beyond the integers the dtype holds exactly (``2**24`` in float32), so their
@@ -458,8 +466,8 @@ def capture_stack(
 
     Raises:
         TypeError: ``radiance`` is not a floating tensor, ``bits`` not an integer or ``straight_through`` not a bool.
-        ValueError: a bad shape, negative, NaN or infinite radiance, non-positive exposures, or more bits than
-            the dtype holds.
+        ValueError: a bad shape, negative, NaN or infinite radiance, non-positive exposures, more bits than the
+            dtype holds, or counts beyond the dtype's range.
 
     Warns:
         UserWarning: the counts go beyond the integers the dtype holds exactly (see :func:`capture_modulo`).
