@@ -116,6 +116,24 @@ class TestHDRFolder:
         with pytest.raises(IndexError, match="index 4 out of range for 4 files"):
             ds[4]
 
+    def test_hidden_folders_are_skipped(self, tmp_path: Path) -> None:
+        for name in (".ipynb_checkpoints/scene-checkpoint.exr", ".scene.tmp-1-ab/radiance.exr", "scene.exr"):
+            (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+            write_image(tmp_path / name, torch.ones(3, 4, 4))
+        assert [p.name for p in HDRFolder(tmp_path).paths] == ["scene.exr"]
+
+    def test_half_precision_refuses_radiance_beyond_its_range(self, tmp_path: Path) -> None:
+        write_image(tmp_path / "big.exr", torch.full((3, 4, 4), 70000.0))
+        with pytest.raises(ValueError, match=r"big\.exr: radiance reaches 70000, beyond the largest torch.float16"):
+            HDRFolder(tmp_path, dtype=torch.float16)[0]
+        assert float(HDRFolder(tmp_path, dtype=torch.float16, normalize=1000.0)[0].max()) == 1000.0
+        assert float(HDRFolder(tmp_path, dtype=torch.bfloat16)[0].max()) == 70144.0  # within bfloat16's range
+
+    @pytest.mark.parametrize("flag", ["recursive", "random_crop", "return_path"])
+    def test_flags_must_be_bools(self, scenes: Path, flag: str) -> None:
+        with pytest.raises(TypeError, match=f"{flag} must be a bool; got 'no'"):
+            HDRFolder(scenes, **{flag: "no"})
+
     def test_errors(self, tmp_path: Path, scenes: Path) -> None:
         with pytest.raises(FileNotFoundError, match="missing"):
             HDRFolder(tmp_path / "missing")
@@ -166,6 +184,13 @@ class TestRandomModuloCapture:
         aug = RandomModuloCapture(exposure=(1.0, 4.0), bits=8)
         out = aug(torch.rand(0, 3, 8, 8))
         assert out.shape == (0, 3, 8, 8) and aug.exposure is not None and aug.exposure.shape == (0,)
+        assert K.AugmentationSequential(aug)(torch.rand(0, 3, 8, 8)).shape == (0, 3, 8, 8)
+        assert aug(torch.rand(0, 3, 8, 8), params={"exposure": torch.empty(0)}).shape == (0, 3, 8, 8)
+
+    @pytest.mark.parametrize("flag", ["log_uniform", "straight_through"])
+    def test_flags_must_be_bools(self, flag: str) -> None:
+        with pytest.raises(TypeError, match=f"{flag} must be a bool; got 'no'"):
+            RandomModuloCapture(**{flag: "no"})
 
     def test_smoke_equals_capture(self) -> None:
         torch.manual_seed(0)

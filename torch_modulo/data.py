@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from kornia.augmentation import IntensityAugmentationBase2D
 from torch.utils.data import Dataset
 
-from torch_modulo._checks import check_bits, check_choice
+from torch_modulo._checks import check_bits, check_choice, check_flag
 from torch_modulo.capture import capture_modulo
 from torch_modulo.pipeline import NONFINITE, load_radiance
 from torch_modulo.sensors.simulated import NoiseModel, simulate_capture
@@ -63,7 +63,9 @@ class HDRFolder(Dataset):
     resized, scaled and cropped, then passed to ``transform``.
 
     Args:
-        root: folder searched (recursively by default) for files with ``extensions``, in sorted path order.
+        root: folder searched (recursively by default) for files with ``extensions``, in sorted path order; names
+            that start with a dot are skipped at every level (``.ipynb_checkpoints``, a killed batch job's
+            ``.<name>.tmp-*`` folders).
         extensions: file extensions to collect.
         recursive: search subfolders too.
         resize: None; an int: shrink so that the longer side is at most this (aspect kept; smaller images are
@@ -79,14 +81,17 @@ class HDRFolder(Dataset):
         transform: callable applied last to the (C, H, W) tensor (for example a Kornia augmentation with
             ``keepdim=True``).
         return_path: items are ``(image, path string)`` instead of the image alone.
-        dtype: floating dtype of the items.
+        dtype: floating dtype of the items (float16 and bfloat16 refuse, with the file named, an item whose
+            radiance is beyond their range instead of turning it into infinities: use ``normalize``).
         nonfinite: ``"replace"`` (default) or ``"raise"``: what reading an item does with NaN and infinite
             values. A file with no finite value at all is refused either way.
 
     Raises:
         FileNotFoundError: ``root`` does not exist.
-        ValueError: no files found, bad sizes or options; when reading an item, an image smaller than the crop, or
-            NaN or infinite values it may not replace (the message names the file and counts them).
+        ValueError: no files found, bad sizes or options; when reading an item, an image smaller than the crop, NaN
+            or infinite values it may not replace (the message names the file and counts them), or radiance beyond
+            ``dtype``'s range.
+        TypeError: a flag (``recursive``, ``random_crop``, ``return_path``) that is not a bool.
         OSError: an item cannot be read (the message names the file).
 
     Example:
@@ -121,9 +126,15 @@ class HDRFolder(Dataset):
         if isinstance(extensions, str):
             extensions = (extensions,)
         exts = tuple(e.lower() if e.startswith(".") else f".{e.lower()}" for e in extensions)
+        recursive = check_flag(recursive, "recursive")
         pattern = root.rglob("*") if recursive else root.glob("*")
+        # Hidden names are skipped at every level: .ipynb_checkpoints, and a killed batch job's .<name>.tmp-* folders.
         self.paths: list[Path] = sorted(
-            p for p in pattern if p.is_file() and p.suffix.lower() in exts and not p.name.startswith(".")
+            p
+            for p in pattern
+            if p.is_file()
+            and p.suffix.lower() in exts
+            and not any(part.startswith(".") for part in p.relative_to(root).parts)
         )
         if not self.paths:
             raise ValueError(f"no files ending in {', '.join(exts)} in {root}" + (" or its subfolders" * recursive))
@@ -136,7 +147,7 @@ class HDRFolder(Dataset):
         else:
             self.resize = _size(resize, "resize")
         self.crop = _size(crop, "crop")
-        self.random_crop = bool(random_crop)
+        self.random_crop = check_flag(random_crop, "random_crop")
         if channels not in (None, 1, 3):
             raise ValueError(f"channels must be 1, 3 or None; got {channels!r}")
         self.channels = channels
@@ -149,7 +160,7 @@ class HDRFolder(Dataset):
         if transform is not None and not callable(transform):
             raise TypeError(f"transform must be callable; got {type(transform).__name__}")
         self.transform = transform
-        self.return_path = bool(return_path)
+        self.return_path = check_flag(return_path, "return_path")
         if dtype not in (torch.float16, torch.bfloat16, torch.float32, torch.float64):
             raise TypeError(f"dtype must be a floating torch dtype; got {dtype}")
         self.dtype = dtype
@@ -209,7 +220,15 @@ class HDRFolder(Dataset):
             peak = float(flat.kthvalue(k).values) if flat.numel() else 0.0
             if peak > 0:
                 image = image * (self.normalize / peak)
-        image = self._cropped(image, path).to(self.dtype)
+        image = self._cropped(image, path)
+        if image.numel() and self.dtype in (torch.float16, torch.bfloat16):
+            top, limit = float(image.max()), torch.finfo(self.dtype).max
+            if top > limit:
+                raise ValueError(
+                    f"{path}: radiance reaches {top:.6g}, beyond the largest {self.dtype} ({limit:.6g}); "
+                    "scale it with normalize= or load it as float32"
+                )
+        image = image.to(self.dtype)
         if self.transform is not None:
             image = self.transform(image)
         return (image, str(path)) if self.return_path else image
@@ -274,13 +293,14 @@ class RandomModuloCapture(IntensityAugmentationBase2D):
             raise ValueError(f"exposure range must satisfy 0 < low <= high (finite); got ({low}, {high})")
         if noise is not None and not isinstance(noise, NoiseModel):
             raise TypeError(f"noise must be a NoiseModel or None; got {type(noise).__name__}")
+        straight_through = check_flag(straight_through, "straight_through")
         if straight_through and noise is not None:
             raise ValueError("straight_through=True needs noise=None (the noisy capture has no gradient)")
         self.low, self.high = low, high
         self.bits = check_bits(bits, torch.float64)
-        self.log_uniform = bool(log_uniform)
+        self.log_uniform = check_flag(log_uniform, "log_uniform")
         self.noise = noise
-        self.straight_through = bool(straight_through)
+        self.straight_through = straight_through
 
     def generate_parameters(self, batch_shape: tuple[int, ...]) -> dict[str, torch.Tensor]:
         n = 1 if self.same_on_batch else batch_shape[0]
