@@ -52,7 +52,8 @@ class NoiseModel:
         electrons_per_count: ``q``, the threshold charge that makes one counter pulse (the quantisation step), > 0.
             Larger values average shot noise down in counts: its variance is ``mean / q``.
         read_noise: ``sigma_r``, read/reset noise in electrons rms per frame, >= 0 (``read_noise / q`` counts).
-        dark_current: ``D``, electrons per unit exposure, >= 0 (a dark frame's mean is ``D tau / q`` counts).
+        dark_current: ``D``, electrons per unit exposure, >= 0 (a dark frame collects ``D tau / q`` counts of
+            charge on average; its read-out mean is about half a count lower, the counter's floor).
         prnu: ``sigma_g``, relative standard deviation of the fixed-pattern gain (0.01 = 1 %), >= 0.
         shot_noise: draw the collected charge from a Poisson distribution (True) or use its mean (False).
 

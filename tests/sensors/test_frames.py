@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import pytest
 import torch
 
@@ -84,7 +85,7 @@ class TestFrameStackErrors:
 
     def test_exposures(self) -> None:
         moduli = _stack(b=2, m=3)
-        with pytest.raises(ValueError, match="exposure must be positive; got 0.0"):
+        with pytest.raises(ValueError, match="exposures must be positive; got 0.0"):
             FrameStack(moduli, [1.0, 0.0, 2.0])
         with pytest.raises(ValueError, match=r"\(M,\) = \(3,\) or \(B, M\) = \(2, 3\).*got \(2,\)"):
             FrameStack(moduli, [1.0, 2.0])
@@ -127,6 +128,18 @@ class TestFrameStackOps:
             stack[4]
         with pytest.raises(TypeError, match="int or a slice; got str"):
             stack["a"]  # type: ignore[index]
+        with pytest.raises(TypeError, match="int or a slice; got bool"):
+            stack[True]
+        assert stack[np.int64(2)] == one and stack[torch.tensor(2)] == one  # what samplers give
+        with pytest.raises(ValueError, match=r"step forward \(step >= 1\); got slice\(None, None, -1\)"):
+            stack[::-1]
+
+    def test_nested_list_exposures(self) -> None:
+        moduli = _stack(b=2)
+        nested = FrameStack(moduli, [[1.0, 2.0, 4.0], [1.0, 3.0, 9.0]])
+        assert nested == FrameStack(moduli, torch.tensor([[1.0, 2.0, 4.0], [1.0, 3.0, 9.0]]))
+        with pytest.raises(TypeError, match="exposures must be a sequence of numbers"):
+            FrameStack(moduli, [[1.0, 2.0, 4.0], [1.0]])
 
     def test_equality(self) -> None:
         moduli = _stack()

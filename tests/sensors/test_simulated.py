@@ -212,6 +212,40 @@ class TestDeterminism:
         assert torch.equal(a, b)
 
 
+class _Captures(torch.utils.data.Dataset):
+    """Noisy captures of one flat scene, made in DataLoader workers by one sensor the workers each copy."""
+
+    def __init__(self) -> None:
+        self.sensor = SimulatedModuloSensor(bits=8, noise=NoiseModel(), seed=3)
+
+    def __len__(self) -> int:
+        return 4
+
+    def __getitem__(self, index: int) -> torch.Tensor:
+        return self.sensor(torch.full((1, 1, 8, 8), 900.0), [1.0]).moduli[0, 0]
+
+
+def _epochs(workers: int) -> list[torch.Tensor]:
+    torch.manual_seed(0)
+    loader = torch.utils.data.DataLoader(_Captures(), batch_size=1, num_workers=workers)
+    return [torch.cat(list(loader)) for _ in range(2)]
+
+
+def test_dataloader_workers_do_not_repeat_each_others_noise() -> None:
+    first, second = _epochs(2)
+    assert not torch.equal(first[0], first[1])  # items 0 and 1 come from the two workers' first draws
+    assert not torch.equal(first, second)  # a new epoch, new noise
+    again = _epochs(2)
+    assert torch.equal(again[0], first) and torch.equal(again[1], second)  # repeatable for a given seed
+
+
+@pytest.mark.parametrize("name", ["seed", "fpn_seed"])
+def test_seed_out_of_the_generators_range(name: str) -> None:
+    with pytest.raises(ValueError, match=rf"{name} must be in \[-2\*\*63, 2\*\*64\); got 18446744073709551616"):
+        SimulatedModuloSensor(**{name: 2**64})
+    assert SimulatedModuloSensor(seed=2**64 - 1).fpn_seed == 0
+
+
 class TestSensorContract:
     def test_smoke_and_metadata(self) -> None:
         sensor = SimulatedModuloSensor(bits=10, seed=2)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
+import operator
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -83,7 +84,9 @@ class FrameStack:
             raise ValueError(f"moduli must hold at least one exposure (M >= 1); got shape {tuple(moduli.shape)}")
         bits = check_bits(bits, moduli.dtype)
         check_modulus(moduli, bits, "moduli")
-        tau = exposure_tensor(exposures, torch.empty(0, dtype=_exposure_dtype(moduli.device), device=moduli.device))
+        tau = exposure_tensor(
+            exposures, torch.empty(0, dtype=_exposure_dtype(moduli.device), device=moduli.device), "exposures"
+        )
         if not (tau.shape == (m,) or tau.shape == (b, m)):
             raise ValueError(
                 f"exposures must have shape (M,) = ({m},) or (B, M) = ({b}, {m}) for moduli of shape "
@@ -182,9 +185,18 @@ class FrameStack:
         return self.batch_size
 
     def __getitem__(self, index: int | slice) -> FrameStack:
-        """Batch items: ``stack[i]`` is a stack of one scene (B = 1), ``stack[i:j]`` several."""
-        if isinstance(index, bool) or not isinstance(index, int | slice):
-            raise TypeError(f"FrameStack index must be an int or a slice; got {type(index).__name__}")
+        """Batch items: ``stack[i]`` is a stack of one scene (B = 1), ``stack[i:j]`` several (``i``: any integer,
+        numpy's and 0-d tensors' included; slices step forward)."""
+        if not isinstance(index, slice):
+            given = index
+            try:  # numpy integers and 0-d integer tensors too (what samplers and permutations give)
+                index = None if isinstance(given, bool) else operator.index(given)
+            except TypeError:
+                index = None
+            if index is None:
+                raise TypeError(f"FrameStack index must be an int or a slice; got {type(given).__name__}")
+        elif index.step is not None and operator.index(index.step) <= 0:
+            raise ValueError(f"FrameStack slices must step forward (step >= 1); got {index}")
         if isinstance(index, int):
             if not -self.batch_size <= index < self.batch_size:
                 raise IndexError(f"batch index {index} out of range for a FrameStack of {self.batch_size} items")

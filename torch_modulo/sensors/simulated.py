@@ -30,7 +30,10 @@ noise the counts are exactly Poisson. A modulo sensor's low bits are therefore n
 approaches ``2^N``: single-shot unwrapping needs the noise between neighbours to stay well below ``2^(N-1)``.
 
 Randomness: each sensor draws from its own ``torch.Generator`` (one per device) seeded with ``seed``, so the same
-seed gives the same frames on every run on the same device (CPU and CUDA streams differ). The fixed-pattern gain
+seed gives the same frames on every run on the same device (CPU and CUDA streams differ). In a DataLoader worker the
+generator is seeded from ``seed`` and the worker's seed (``torch.utils.data.get_worker_info().seed``, which differs
+per worker and per epoch and follows ``torch.manual_seed`` in the main process): workers do not repeat each other's
+noise, and a run is still repeatable for a given seed and number of workers. The fixed-pattern gain
 comes from a separate generator seeded with ``fpn_seed``, so it is the same for every capture of a sensor instance
 and for every instance with the same ``fpn_seed``.
 """
@@ -232,6 +235,8 @@ def _seed(value: object, name: str) -> int:
     # Not _checks.check_int: the sensors have always said "an int", and their tests match that wording.
     if isinstance(value, bool) or not isinstance(value, int):
         raise TypeError(f"{name} must be an int; got {value!r}")
+    if not -(2**63) <= value < 2**64:  # what torch.Generator.manual_seed takes
+        raise ValueError(f"{name} must be in [-2**63, 2**64); got {value}")
     return int(value)
 
 
@@ -253,8 +258,8 @@ class _SimulatedSensor(nn.Module):
         self.noise = as_noise_model(noise)
         self.cfa = check_cfa(cfa) if cfa is not None else None
         self.seed = _seed(seed, "seed")
-        self.fpn_seed = _seed(fpn_seed, "fpn_seed") if fpn_seed is not None else self.seed + 1
-        self._generators: dict[torch.device, torch.Generator] = {}
+        self.fpn_seed = _seed(fpn_seed, "fpn_seed") if fpn_seed is not None else (self.seed + 1) % 2**64
+        self._generators: dict[tuple[torch.device, int | None], torch.Generator] = {}
         self._gains: dict[tuple[Any, ...], torch.Tensor] = {}
 
     def manual_seed(self, seed: int) -> _SimulatedSensor:
@@ -268,9 +273,15 @@ class _SimulatedSensor(nn.Module):
         device = torch.device(device)
         if device.type == "cuda" and device.index is None:
             device = torch.device("cuda", torch.cuda.current_device())
-        if device not in self._generators:
-            self._generators[device] = torch.Generator(device=device).manual_seed(self.seed)
-        return self._generators[device]
+        # In a DataLoader worker the stream also follows the worker's seed (different for every worker and epoch,
+        # and set by the main process's torch.manual_seed): copies of one sensor would otherwise repeat each
+        # other's noise, and every epoch the last one's.
+        worker = torch.utils.data.get_worker_info()
+        key = (device, None if worker is None else worker.seed)
+        if key not in self._generators:
+            seed = self.seed if worker is None else (self.seed * 6364136223846793005 + worker.seed) % 2**64
+            self._generators[key] = torch.Generator(device=device).manual_seed(seed)
+        return self._generators[key]
 
     def gain_map(self, shape: Sequence[int], device: torch.device | str, dtype: torch.dtype) -> torch.Tensor | None:
         """The fixed-pattern gain for pixels of ``shape`` (C, H, W), or None without PRNU; same for every call."""
