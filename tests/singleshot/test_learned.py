@@ -13,7 +13,7 @@ import torch
 
 from torch_modulo.capture import modulo_wrap
 from torch_modulo.cfa import interpolate_wrapped, mosaic
-from torch_modulo.singleshot import learned, unwrap_single
+from torch_modulo.singleshot import SingleShotUnwrap, learned, unwrap_single
 from torch_modulo.singleshot.learned import (
     MOSAIC_CUTS,
     STRIP,
@@ -93,6 +93,16 @@ class TestLoader:
         torch.save({"config": net.config, "state": net.state_dict()}, path)
         out = unwrap_single(torch.from_numpy(scene(16)) % 256, method="learned", weights=str(path))
         assert out.shape == (16, 16)
+
+    def test_a_file_that_is_not_weights_is_named(self, tmp_path) -> None:
+        text, other = tmp_path / "notes.pt", tmp_path / "other.pt"
+        text.write_text("not a network")
+        torch.save({"state": {}}, other)
+        for path in (text, other):
+            with pytest.raises(ValueError, match=rf"'{path}' is not a weights file of the training recipe"):
+                SingleShotUnwrap(method="learned", weights=str(path))  # at construction, not at the first image
+            with pytest.raises(ValueError, match="is not a weights file"):
+                load_model(path)
 
     def test_bad_options(self) -> None:
         m = torch.zeros(8, 8)

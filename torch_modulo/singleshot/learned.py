@@ -204,9 +204,15 @@ class EdgeJumpNet(nn.Module):
 
 @functools.lru_cache(maxsize=4)
 def _load_cached(path: str, device: str) -> EdgeJumpNet:
-    record = torch.load(path, map_location="cpu", weights_only=True)
-    net = EdgeJumpNet(**record["config"])
-    net.load_state_dict({k: v.float() for k, v in record["state"].items()})
+    try:
+        record = torch.load(path, map_location="cpu", weights_only=True)
+        net = EdgeJumpNet(**record["config"])
+        net.load_state_dict({k: v.float() for k, v in record["state"].items()})
+    except Exception as error:  # a file of another kind, another network, a truncated download: name the file
+        raise ValueError(
+            f"{path!r} is not a weights file of the training recipe ({{'config': ..., 'state': ...}} for "
+            f"EdgeJumpNet): {type(error).__name__}: {error}"
+        ) from error
     return net.eval().to(device)  # one cached copy per device: moving a shared copy would move it for every caller
 
 
@@ -217,6 +223,9 @@ def load_model(path: str | Path | None = None, device: torch.device | str = "cpu
         path: a weights file written by the training recipe (``{"config": ..., "state": ...}``); ``None`` loads
             the weights shipped in the package.
         device: where to put the network.
+
+    Raises:
+        ValueError: the file is not a weights file of the training recipe (the message names it).
 
     Example:
         >>> load_model().max_jump
@@ -740,7 +749,8 @@ def learned_confidence(
 
 
 def check_weights(value: object, name: str) -> str | None:
-    """The ``weights`` option: ``None`` (the shipped weights) or the path of an existing weights file, as a string.
+    """The ``weights`` option: ``None`` (the shipped weights) or the path of a weights file, as a string (the file is
+    loaded, and cached, to check it).
 
     Example:
         >>> check_weights(None, "weights") is None
@@ -752,6 +762,7 @@ def check_weights(value: object, name: str) -> str | None:
         raise TypeError(f"{name} must be None or a path to a weights file; got {value!r}")
     if not Path(value).is_file():
         raise ValueError(f"{name} must be an existing weights file; got {str(value)!r}")
+    _load_cached(str(value), "cpu")  # a file that is not one fails here, naming it, not at the first image
     return str(value)
 
 
