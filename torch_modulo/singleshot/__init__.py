@@ -201,7 +201,8 @@ def unwrap_single(
     pairs a trained network is surest of, ``"guided"`` the most reliable paths by second differences. Then ``k``
     is anchored: the darkest connected region holding at least 3% of the pixels (or 0.1% with mostly smooth
     borders) gets ``k = 0`` and nothing is left below it (``k >= 0``). Images are independent problems, and so are
-    channels for the graph-cut methods; they are solved in parallel worker processes. The energy settings
+    channels for the graph-cut methods; ``"guided"``, ``"fast"`` and ``"paper"`` solve them in parallel worker
+    processes, ``"learned"`` and ``"lsq"`` the batch in this process, on its device. The energy settings
     (``neighborhood``, ``a1``, ``a2``, ``x0``) and ``sigma``, ``max_iter`` steer the graph-cut methods; for
     ``"learned"`` and ``"guided"`` they only define the energy reported.
 
@@ -224,7 +225,8 @@ def unwrap_single(
         workers: worker processes; ``None`` uses ``min(planes, os.cpu_count())`` when the job is large enough to
             pay for a pool, else runs in-process; 1 always runs in-process, and so does any value inside a
             daemonic process (a DataLoader worker, say). Scripts that use a pool need the usual
-            ``if __name__ == "__main__":`` guard. ``"lsq"`` uses none: it solves the batch on its device.
+            ``if __name__ == "__main__":`` guard. ``"learned"`` (the default) and ``"lsq"`` use none: they solve the
+            batch in this process, on its device (``workers`` is ignored).
         return_info: also return a :class:`SingleShotInfo` (energy per iteration, iteration counts, timings; for
             ``"learned"`` the confidence map of the same run, :attr:`SingleShotInfo.confidence`).
         cfa: None, or the colour filter array of a mosaic (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``):
