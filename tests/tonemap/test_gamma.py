@@ -96,3 +96,13 @@ class TestGammaExposureRange:
         assert torch.isfinite(down).all() and float(down[0, 0]) == 0.0 and float(down.max()) < 1e-100
         grad = tonemap_gamma(x.clone().requires_grad_(True), exposure=1000.0, percentile=percentile)
         assert torch.equal(grad.detach(), up)
+
+
+@pytest.mark.parametrize("half", [torch.float16, torch.bfloat16])
+def test_dim_half_precision_radiance_reaches_white(half: torch.dtype) -> None:
+    # The scale of dim radiance (2**17 for 2**-17) is beyond float16's range: the mapping works in float32.
+    dim = torch.full((1, 1, 2, 2), 2.0**-17, dtype=half)
+    assert torch.equal(tmo.tonemap_gamma(dim, gamma=1.0, exposure=17), torch.ones_like(dim))
+    ramp = torch.linspace(0, 1.1e-5, 16).reshape(1, 1, 4, 4).to(half)
+    out = tmo.tonemap_gamma(ramp, gamma=1.0, percentile=100)
+    assert out.dtype == half and float(out.max()) == 1.0

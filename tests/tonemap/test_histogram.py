@@ -286,3 +286,12 @@ class TestHistogramPrecision:
             out = tonemap_histogram((x * scale).requires_grad_(grad)).detach()
             assert out.dtype == torch.float16 and torch.isfinite(out).all()
             assert float((out.float() - expected).abs().max()) < 2e-3, scale
+
+
+def test_display_contrast_beyond_the_work_dtype_is_refused() -> None:
+    x = torch.rand(1, 3, 8, 8)
+    x[:, 0] = 0.0  # a black channel: 0 * inf was NaN there
+    with pytest.raises(ValueError, match=r"ld_max / ld_min must be at most 1e\+30 .*ld_max=1e\+40"):
+        tmo.tonemap_histogram(x, ld_max=1e40)
+    out = tmo.tonemap_histogram(x, ld_max=1e30)
+    assert bool(torch.isfinite(out).all()) and float(out.max()) <= 1.0

@@ -91,3 +91,10 @@ class TestLogExposureRange:
         got = tonemap_log(x.clone().requires_grad_(grad), exposure=exposure).detach()
         assert got.dtype == torch.float32 and torch.isfinite(got).all()
         torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7)
+
+
+def test_batch_equals_images_when_one_needs_float64() -> None:
+    a = torch.rand(1, 3, 8, 8) * 100
+    b = torch.full((1, 3, 8, 8), 3e38)  # its scaled luminance leaves float32: mapped in float64
+    batch = tonemap_log(torch.cat([a, b]), k=4.0)
+    assert torch.equal(batch[:1], tonemap_log(a, k=4.0)) and torch.equal(batch[1:], tonemap_log(b, k=4.0))

@@ -22,7 +22,8 @@ Conventions shared by every operator:
   ``C = 3`` (linear Rec.709 / sRGB primaries). Luminance is ``Y = 0.2126 R + 0.7152 G + 0.0722 B``. Negative,
   NaN or infinite values, other channel counts and other ranks raise ``ValueError``; non-floating input raises
   ``TypeError``. The absolute scale of the radiance does not matter except where an operator says so (the
-  ``exposure`` of the gamma and logarithmic mappings).
+  ``exposure`` of the gamma and logarithmic mappings, and Reinhard's ``delta``, an offset in radiance units that
+  matters once the luminance is not far above it: scale radiance of about ``1e-5`` up, or lower ``delta``).
 - Output: display-referred values in ``[0, 1]``, same shape, dtype and device as the input; linear display
   values unless ``srgb=True``, which applies the sRGB transfer function (``kornia.color.linear_rgb_to_rgb``).
 - Statistics (log average, maximum, histogram, percentiles) are computed per batch item: a batch gives the

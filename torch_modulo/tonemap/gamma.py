@@ -16,6 +16,7 @@ from torch_modulo.tonemap._common import (
     pixel_tiles,
     restore,
     tiled,
+    widened,
 )
 
 __all__ = ["GammaToneMap", "tonemap_gamma"]
@@ -73,11 +74,13 @@ def tonemap_gamma(
     """
     gamma, exposure, pct = _check_gamma_args(gamma, exposure, percentile)
     srgb = check_flag(srgb, "srgb")
-    x, shape = as_batch(hdr)
-    if x.numel() == 0:
-        return restore(x.clone(), shape)
-    # 2**exposure is a normal float64; in the input's dtype it may overflow, so cap it (and its quotient by the
-    # percentile) at the dtype's largest value: any radiance it multiplies then still clips to 1, and black stays 0.
+    given, shape = as_batch(hdr)
+    if given.numel() == 0:
+        return restore(given.clone(), shape)
+    x = widened(given)  # float16's range does not hold the scale of dim radiance (2**17 for 2**-17)
+    # 2**exposure is a normal float64; in the work dtype it may overflow, so cap it (and its quotient by the
+    # percentile) at the dtype's largest value: any radiance it multiplies then still clips to 1 (float32 holds
+    # the reciprocal of every float16 radiance), and black stays 0.
     top = torch.finfo(x.dtype).max
     scale = torch.full((x.shape[0],), min(2.0**exposure, top), dtype=x.dtype, device=x.device)
     if pct is not None:
@@ -94,7 +97,7 @@ def tonemap_gamma(
         if inv_gamma != 1.0:
             # d/dx x^(1/g) is infinite at 0 for g > 1: keep the gradient finite there.
             out = torch.where(out > 0, out.clamp_min(torch.finfo(x.dtype).tiny) ** inv_gamma, out)
-    return restore(encode(out, srgb), shape)
+    return restore(encode(out, srgb).to(given.dtype), shape)
 
 
 def _gamma_tiled(x: torch.Tensor, scale: torch.Tensor, inv_gamma: float) -> torch.Tensor:

@@ -26,6 +26,10 @@ __all__ = ["HistogramToneMap", "fovea_shape", "tonemap_histogram"]
 _POSITIVE = "a positive finite number"
 
 
+#: The largest display contrast ``ld_max / ld_min`` (real displays reach about 1e6; float32 overflows near 1e38).
+MAX_CONTRAST = 1e30
+
+
 def _check_histogram_args(
     ld_min: object,
     ld_max: object,
@@ -39,6 +43,11 @@ def _check_histogram_args(
     ld_max_f = check_real(ld_max, "ld_max", positive=True, what=_POSITIVE)
     if ld_max_f <= ld_min_f:
         raise ValueError(f"ld_max must be greater than ld_min; got ld_min={ld_min!r}, ld_max={ld_max!r}")
+    if ld_max_f / ld_min_f > MAX_CONTRAST:  # beyond, exp(log(ld_max / ld_min) P) overflows the float32 work
+        raise ValueError(
+            f"ld_max / ld_min must be at most {MAX_CONTRAST:g} (a display's contrast); got ld_min={ld_min!r}, "
+            f"ld_max={ld_max!r}"
+        )
     bins_i = check_int(bins, "bins", 2)
     fov_f, fovea_f = _check_view(fov, fovea)
     tol = check_real(tolerance, "tolerance", positive=True, high=1.0, what="in (0, 1)")
@@ -187,7 +196,8 @@ def tonemap_histogram(
     Args:
         hdr: linear radiance, (B, C, H, W), (C, H, W) or (H, W), C = 1 or 3, values >= 0.
         ld_min: display black luminance :math:`L_{d,min}` (cd/m², only the ratio to ``ld_max`` matters).
-        ld_max: display white luminance :math:`L_{d,max}` (default 100:1 display).
+        ld_max: display white luminance :math:`L_{d,max}` (default 100:1 display; at most :data:`MAX_CONTRAST`
+            times ``ld_min``).
         bins: histogram bins (the paper and ``pcond`` use 100).
         fov: angle in degrees spanned by the image's longer side (``pcond``'s default view is 40 degrees).
         fovea: foveal sample size in degrees (1 in the paper).

@@ -133,6 +133,13 @@ def tonemap_log(
         return restore(x.clone(), shape)
     s = 2.0**exposure
     qs, ks = q * s, k * s
+    if x.shape[0] > 1 and x.dtype != torch.float64 and not torch.compiler.is_compiling():
+        tops = x.detach().amax(dim=(1, 2, 3)).tolist()  # bound each image's luminance: its weights sum to 1
+        if not all(_fits(x.dtype, qs, t) and _fits(x.dtype, ks, t) for t in tops):
+            # An image that needs float64 would move the whole batch there: map one image at a time, so a batch
+            # gives the same result as its images alone.
+            parts = [tonemap_log(x[i : i + 1], q, k, exposure, srgb=srgb) for i in range(x.shape[0])]
+            return restore(torch.cat(parts), shape)
     if tiled(x):
         y_max, _ = luminance_stats_tiled(x, None)
         top = float(y_max.max())
