@@ -205,3 +205,12 @@ def test_regression_potential_and_is_representable_refuse_nan_and_inf(bad):
         potential(x, bits=8)
     with pytest.raises(ValueError, match="x must be finite"):
         is_representable(x, bits=8)
+
+
+@pytest.mark.parametrize("half", [torch.float16, torch.bfloat16])
+def test_half_precision_energy_is_summed_in_float32(half: torch.dtype) -> None:
+    counts = torch.randint(0, 2000, (1, 1, 64, 64), generator=torch.Generator().manual_seed(0)).float()
+    energy = unwrap_energy(counts.to(half))  # float16 sums overflowed to inf
+    assert energy.dtype == torch.float32 and bool(torch.isfinite(energy).all())
+    if half == torch.float16:  # these counts are exact in float16: the same energy as float32's
+        assert torch.allclose(energy, unwrap_energy(counts), rtol=1e-5)

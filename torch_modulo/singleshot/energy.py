@@ -204,7 +204,8 @@ def unwrap_energy(
 
     Returns:
         The energy with the spatial dimensions summed out: (B, C), (C,) or a scalar; ``restored``'s dtype
-        and device. Differentiable almost everywhere.
+        (float32 for float16 and bfloat16, which are summed in float32: a float16 energy of a 64 x 64 image
+        already passes 65504) and device. Differentiable almost everywhere.
 
     Example:
         >>> img = torch.tensor([[0.0, 10.0], [20.0, 30.0]])
@@ -216,6 +217,8 @@ def unwrap_energy(
     check_finite(restored, "restored")
     offsets = pair_offsets(neighborhood)
     p = EnergyParams.make(bits, a1, a2, x0)
+    if restored.dtype in (torch.float16, torch.bfloat16):
+        restored = restored.float()
     h, w = restored.shape[-2:]
     total = restored.new_zeros(restored.shape[:-2])
     for off in offsets:
