@@ -211,3 +211,15 @@ class TestRealScenes:
             paper = tm.unwrap_multi(moduli, taus, 8, method="paper", return_counts=True)
             wrong_paper.append(float((paper != truth).double().mean()))
         assert max(wrong_paper) > 0.01  # Eq. 6 as printed fails on real scenes at such ratios
+
+
+def test_counts_beyond_the_dtype_warn() -> None:
+    radiance = torch.tensor([[[[0.25, 2.75, 70.5]]]], dtype=torch.float64)
+    taus = [1.0, 100.0, 10000.0]
+    moduli = tm.capture_stack(radiance, taus, bits=8).half()
+    with pytest.warns(UserWarning, match=r"counts reach inf, beyond what torch.float16 holds exactly \(2048\)"):
+        tm.unwrap_multi(moduli, taus, bits=8, return_counts=True)
+    with pytest.warns(UserWarning, match="beyond what torch.float16 holds exactly"):
+        tm.unwrap_multi(moduli, taus, bits=8)  # radiance: the counts are still beyond
+    exact = tm.unwrap_multi(moduli.double(), taus, bits=8, return_counts=True)  # no warning in float64
+    assert exact.flatten().tolist() == [2500.0, 27500.0, 705000.0]

@@ -10,7 +10,15 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from torch_modulo._checks import check_bits, check_choice, check_flag, check_modulus, check_real, validation_enabled
+from torch_modulo._checks import (
+    MAX_BITS,
+    check_bits,
+    check_choice,
+    check_flag,
+    check_modulus,
+    check_real,
+    validation_enabled,
+)
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
 from torch_modulo.multishot.planning import unsafe_ratio_message
@@ -18,6 +26,23 @@ from torch_modulo.multishot.stack import neighbour_ratios, sort_stack, stack_exp
 from torch_modulo.noise import NoiseModel, as_noise_model
 
 __all__ = ["MultiExposureUnwrap", "unwrap_multi"]
+
+
+def _warn_inexact_counts(out: torch.Tensor, tau: torch.Tensor, counts: bool) -> None:
+    """Warn when the counts decoded into ``out`` (radiance unless ``counts``) are beyond the integers its dtype holds
+    exactly (float16: 2048, float32: 2**24), or beyond its range."""
+    limit = MAX_BITS.get(out.dtype, 53)
+    if limit >= 53:
+        return
+    top = float(out.max())  # inf where the dtype overflowed
+    if not counts:
+        top *= float(tau[:, -1].max())  # radiance times the longest exposure: the counts, at most
+    if top > 2**limit:
+        warnings.warn(
+            f"counts reach {top:.0f}, beyond what {out.dtype} holds exactly ({2**limit}): they are rounded (or "
+            "infinite past the dtype's range); use float64 moduli for exact counts",
+            stacklevel=3,
+        )
 
 
 def _warn_unsafe(tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: NoiseModel, sigmas: float) -> None:
@@ -121,8 +146,8 @@ def unwrap_multi(
         Radiance (or counts), (B, C, H, W) or (C, H, W), same dtype and device as ``moduli``; with
         ``return_variance=True`` a tuple ``(radiance, variance)``. Without noise the radiance is ``I / tau_max``
         (Eq. 7's convention, the lower edge of the final cell); with noise it is the unbiased estimate
-        ``(I + 1/2) / tau`` per frame, less the dark counts. Counts above ``2**24`` are rounded in float32: use
-        float64 for them.
+        ``(I + 1/2) / tau`` per frame, less the dark counts. Counts above ``2**24`` are rounded in float32 (above 2048
+        in float16, where they overflow past 65504), with a warning: use float64 for them.
 
     Raises:
         TypeError: ``moduli`` is not a floating tensor, ``exposures`` not numbers, ``noise`` not a NoiseModel.
@@ -130,7 +155,8 @@ def unwrap_multi(
             neighbouring ratio above ``2**bits``, an unknown method, or ``method="paper"`` with ``noise``.
 
     Warns:
-        UserWarning: with ``noise``, when a neighbouring ratio is too large for the noise (see above).
+        UserWarning: with ``noise``, when a neighbouring ratio is too large for the noise (see above); without,
+        when the counts are beyond the integers the dtype holds exactly.
 
     Example:
         >>> from torch_modulo import capture_modulo
@@ -168,6 +194,7 @@ def unwrap_multi(
         out = torch.empty((b, n), dtype=moduli.dtype, device=moduli.device)
         if out.numel():
             count_rollovers(frames, tau, ratios, bits, method, return_counts, out)
+            _warn_inexact_counts(out, tau, return_counts)
         out = out.view(b, *pixel_shape)
         return out[0] if unbatched else out
 
