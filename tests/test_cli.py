@@ -710,6 +710,57 @@ class TestSingleShotStacks:
         error = _report(tmp_path / "out", "unwrap")["failed"][0]["error"]
         assert "holds 2 modulo frames; --single unwraps one modulo frame" in error and "--exposures 1" in error
 
+    def test_multi_shot_refuses_a_stack_of_one_exposure(self, tmp_path: Path) -> None:
+        source = _smooth_scene(tmp_path / "in" / "smooth.exr")
+        assert _cli("simulate", source.parent, tmp_path / "stacks", "--exposures", "1", "--noise", "none") == 0
+        assert _cli("unwrap", tmp_path / "stacks", tmp_path / "out") == 1  # it gave I_m / tau as radiance, rc 0
+        error = _report(tmp_path / "out", "unwrap")["failed"][0]["error"]
+        assert "holds one modulo frame; rollover counting needs several: unwrap it with --single" in error
+
+
+class TestOutputsThatWouldLoseData:
+    def test_a_scene_beside_a_folder_of_its_name_is_refused(self, tmp_path: Path) -> None:
+        (tmp_path / "in" / "a").mkdir(parents=True)
+        write_image(tmp_path / "in" / "a.exr", _scene(1))
+        write_image(tmp_path / "in" / "a" / "x.exr", _scene(2))
+        write_image(tmp_path / "in" / "b.exr", _scene(3))
+        assert _cli("simulate", tmp_path / "in", tmp_path / "stacks", "--workers", 2) == 1
+        report = _report(tmp_path / "stacks", "simulate")
+        assert _names(report["done"]) == ["b.exr"] and _names(report["failed"]) == ["a.exr", "a/x.exr"]
+        assert "output a and the output of a/x.exr would lie one inside the other" in report["failed"][0]["error"]
+        assert not (tmp_path / "stacks" / "a").exists()
+
+    def test_a_file_beside_a_single_input_is_never_replaced(
+        self, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    ) -> None:
+        folder = tmp_path / "shots"
+        folder.mkdir()
+        write_image(folder / "x.exr", _scene(1))
+        write_image(folder / "x.png", torch.zeros(3, 12, 16))  # the user's own x.png beside the input
+        before = _digest(folder)
+        assert _cli("tonemap", folder / "x.exr", folder) == 1
+        after = _digest(folder)
+        assert after["x.exr"] == before["x.exr"] and after["x.png"] == before["x.png"]
+        assert "x.png exists and no run of torch-modulo tonemap wrote it" in capsys.readouterr().err
+        assert _cli("tonemap", folder / "x.exr", folder, "--force") == 0  # told to
+        assert _digest(folder)["x.png"] != before["x.png"]
+        assert _cli("tonemap", folder / "x.exr", folder) == 0  # its own output now: a rerun resumes
+
+    def test_a_broken_link_is_an_input_that_fails(self, scenes: Path, tmp_path: Path) -> None:
+        (scenes / "gone.exr").symlink_to(tmp_path / "nowhere.exr")
+        assert _cli("tonemap", scenes, tmp_path / "png") == 1
+        report = _report(tmp_path / "png", "tonemap")
+        assert len(report["done"]) == 3 and _names(report["failed"]) == ["gone.exr"]
+        assert "gone.exr" in report["failed"][0]["error"]
+
+    def test_an_output_folder_that_cannot_be_made_is_a_clear_error(
+        self, scenes: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    ) -> None:
+        (tmp_path / "afile").write_text("x")
+        assert _cli("tonemap", scenes, tmp_path / "afile" / "out") == 2
+        err = capsys.readouterr().err
+        assert "cannot create the output folder" in err and "Traceback" not in err
+
 
 # ------------------------------------------------------------------------------------------ colour sensors
 

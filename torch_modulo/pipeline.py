@@ -270,7 +270,8 @@ def folder_tasks(
     from torch_modulo.batch import Task, discover
 
     def suffix_match(extensions: Sequence[str]) -> Callable[[Path], bool]:
-        return lambda p: p.is_file() and p.suffix.lower() in extensions
+        # A broken link with a matching name is an input too: its job fails naming it, rather than it vanishing.
+        return lambda p: (p.is_file() or (p.is_symlink() and not p.exists())) and p.suffix.lower() in extensions
 
     def is_stack(p: Path) -> bool:
         return p.is_dir() and (p / "frames.json").is_file()
@@ -428,6 +429,10 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
     from torch_modulo.multishot import merge_intensity, unwrap_multi
 
     stack = _read_stack(task.source, options["bits"])
+    if stack.kind == "modulo" and stack.num_exposures == 1:  # counting needs two frames: it would return I_m / tau
+        raise ValueError(
+            f"{task.source} holds one modulo frame; rollover counting needs several: unwrap it with --single"
+        )
     cfa = frame_cfa(options.get("cfa"), stack.cfa, task.source, stack.moduli.shape[-3:])
     choice = options.get("noise", "stack")
     noise = noise_model(stack.metadata.get("noise") if choice == "stack" else choice)

@@ -85,8 +85,12 @@ def _relative(path: str | Path, out_dir: Path) -> str:
         return str(path)
 
 
-def _problem(task: Task, target: Path, run: _Run, claimed: Mapping[str, str]) -> str | None:
-    """Why ``task`` may not write ``target`` (inside the input, its own input, another task's output), or None."""
+def _problem(
+    task: Task, target: Path, run: _Run, claimed: Mapping[str, str], holders: Mapping[str, set[str]]
+) -> str | None:
+    """Why ``task`` may not write ``target`` (inside the input, its own input, another task's output, or nested
+    with one), or None. ``holders``: the folders above every claimed output, up to the output folder, with the
+    tasks whose outputs lie below each."""
     root = run.source_root
     if root is not None and (inside(target, root) if root.is_dir() else target == root):
         return f"output {target} would be written inside the input {root}; inputs are never written"
@@ -94,7 +98,43 @@ def _problem(task: Task, target: Path, run: _Run, claimed: Mapping[str, str]) ->
         return f"output {target} would replace its own input"
     if claimed[str(target)] != task.name:
         return f"output {_relative(target, run.out)} is also the output of {claimed[str(target)]}; rename one input"
+    # A scene a.exr beside a folder a/ holding x.exr: the stack folder a/ would hold the stack a/x/.
+    other = next(
+        (claimed[str(p)] for p in _folders_above(target, run.out) if claimed.get(str(p), task.name) != task.name), None
+    )
+    if other is None:
+        other = next((name for name in sorted(holders.get(str(target), ())) if name != task.name), None)
+    if other is not None:
+        rel = _relative(target, run.out)
+        return f"output {rel} and the output of {other} would lie one inside the other; rename one input"
     return None
+
+
+def _beside_its_input(run: _Run) -> bool:
+    """Whether the input is one file and the output folder is its own folder, where the user's other files are."""
+    root = run.source_root
+    return root is not None and root.is_file() and run.out == root.parent
+
+
+def _foreign(run: _Run, task: Task, outs: Sequence[Path]) -> str | None:
+    """In the input's own folder, an output that exists but that no run of this command wrote (no done marker)
+    is the user's file: why it may not be replaced, or None."""
+    if marker_path(run.out, run.command, task.name).is_file():
+        return None
+    there = next((p for p in outs if p.exists()), None)
+    if there is None:
+        return None
+    return (
+        f"output {there} exists and no run of torch-modulo {run.command} wrote it; it is not replaced "
+        "(move it, choose another output folder, or use --force)"
+    )
+
+
+def _folders_above(path: Path, out: Path) -> list[Path]:
+    """The folders between ``path`` and the output folder ``out`` (excluded); none when ``path`` is not under it."""
+    if out not in path.parents:
+        return []
+    return list(path.parents[: path.parents.index(out)])
 
 
 def _complete(run: _Run, task: Task) -> bool:
@@ -155,15 +195,22 @@ def _plan(
     )
 
     claimed: dict[str, str] = {}
+    holders: dict[str, set[str]] = {}
     for task in run.tasks:  # every task (not only this rank's), so each rank sees the same collisions
         for p in task.outputs:
-            claimed.setdefault(str(Path(p).resolve()), task.name)
+            resolved = Path(p).resolve()
+            claimed.setdefault(str(resolved), task.name)
+            for folder in _folders_above(resolved, run.out):
+                holders.setdefault(str(folder), set()).add(task.name)
     for task in mine:
         outs = [Path(p).resolve() for p in task.outputs]
         rel = [_relative(p, run.out) for p in outs]
-        problem = next((why for why in (_problem(task, p, run, claimed) for p in outs) if why), None)
+        problem = next((why for why in (_problem(task, p, run, claimed, holders) for p in outs) if why), None)
+        if problem is None and not force and _beside_its_input(run):
+            problem = _foreign(run, task, outs)
         if problem:
             report.failed.append({"input": task.name, "outputs": rel, "error": f"BatchError: {problem}"})
+            run.log(f"{run.command}: failed {task.name}: BatchError: {problem}")  # as a job's failure is
         elif not force and _complete(run, task):
             reason = "complete: outputs exist and match the options and the input"
             report.skipped.append({"input": task.name, "outputs": rel, "reason": reason})
@@ -392,7 +439,10 @@ def run_batch(
     clean = json.loads(json.dumps(dict(options), allow_nan=True))  # a JSON-clean copy
     run = _Run(command, job, clean, out, source_root, report_file, env, engine, log or default_log)
     run.key = fingerprint(command, clean)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:  # a file in the way, a read-only mount: a usage error, not a traceback
+        raise BatchError(f"cannot create the output folder {out}: {error.strerror or error}") from error
 
     mine = _plan(run, tasks, workers, force, weigh)
     _execute(run, mine, workers, progress, ray_address, preload)

@@ -76,7 +76,8 @@ def discover(
 
     Symbolic links are followed, but every real file or folder is taken once: a folder already entered is not
     entered again (so a link loop ends), and an input reached by several names is listed under the name that
-    passes through no linked folder, else under the first in sorted order.
+    passes through no linked folder, else under the first in sorted order. A broken link that ``match`` accepts is
+    listed under its own name (its job then fails, naming it, rather than the input vanishing).
 
     Args:
         root: the input folder (or one input).
@@ -109,6 +110,7 @@ def discover(
     entered: set[tuple[int, int] | None] = {_identity(root)}
     best: dict[tuple[int, int], tuple[bool, str, Path]] = {}  # identity -> (through a link, name, path)
     pending: list[tuple[Path, bool]] = []
+    broken: list[tuple[str, Path]] = []
 
     def walk(folder: Path, linked: bool) -> None:
         try:
@@ -120,7 +122,8 @@ def discover(
                 continue
             if match(path):
                 key = _identity(path)
-                if key is None:
+                if key is None:  # a broken link: an input all the same, whose job fails naming it
+                    broken.append((path.relative_to(root).as_posix(), path))
                     continue
                 candidate = (linked or path.is_symlink(), path.relative_to(root).as_posix(), path)
                 if key not in best or candidate[:2] < best[key][:2]:
@@ -142,7 +145,8 @@ def discover(
         if key is not None and key not in entered:
             entered.add(key)
             walk(folder, linked)
-    return sorted(((name, path) for _, name, path in best.values()), key=lambda item: item[0])
+    found = [(name, path) for _, name, path in best.values()] + broken
+    return sorted(found, key=lambda item: item[0])
 
 
 def inside(path: Path, folder: Path) -> bool:
