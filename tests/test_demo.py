@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
 from torch_modulo import io
@@ -115,3 +116,22 @@ def test_demo_scales_a_mostly_black_scene_by_its_maximum_and_refuses_a_black_one
     io.write_image(tmp_path / "black.exr", torch.zeros(3, 8, 8))
     assert main(["demo", "--out", str(tmp_path / "out2"), "--scene", str(tmp_path / "black.exr")]) == 1
     assert "is black" in capsys.readouterr().err
+
+
+def test_options_that_cannot_work_are_refused_before_any_work(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as stop:  # argparse: a usage error, rc 2
+        main(["demo", "--out", str(tmp_path / "out"), "--bits", "25"])
+    assert stop.value.code == 2 and "expected a bit depth from 1 to 24; got 25" in capsys.readouterr().err
+    lines: list[str] = []
+    with pytest.raises(ValueError, match=r"ratio must be more than 1 and at most 2\*\*bits - 1 = 255 \(bits=8\)"):
+        run_demo(tmp_path / "out", ratio=1000.0, log=lines.append)
+    assert lines == [] and not (tmp_path / "out").exists()
+
+
+def test_a_scene_among_the_demos_own_outputs_is_refused(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    run_demo(out, _scene(tmp_path / "scene.exr"), method="guided", workers=1, log=lambda _: None)
+    before = (out / "multi_shot.exr").read_bytes()
+    with pytest.raises(ValueError, match="is one of the files the demo writes in"):
+        run_demo(out, out / "multi_shot.exr", method="guided", workers=1, log=lambda _: None)
+    assert (out / "multi_shot.exr").read_bytes() == before

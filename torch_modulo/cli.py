@@ -3,7 +3,7 @@
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
     torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N] [--cfa RGGB]
                                                     every HDR file in IN -> a modulo frame stack per scene in OUT
-    torch-modulo unwrap IN OUT [--single] [--noise stack] [--cfa RGGB] [--no-demosaic]
+    torch-modulo unwrap IN OUT [--single] [--noise MODEL] [--cfa RGGB] [--no-demosaic]
                                                     frame stacks (or single modulus images) -> radiance EXRs
     torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs
 
@@ -279,9 +279,12 @@ def _add_demo(commands: Any) -> None:
     )
     demo.add_argument("--out", default="demo_out", help="output folder (default: %(default)s)")
     demo.add_argument("--scene", default=None, help="an EXR or HDR radiance file (default: the embedded scene)")
-    demo.add_argument("--bits", type=_positive_int, default=8, help="sensor bit depth (default: %(default)s)")
+    demo.add_argument("--bits", type=_bits, default=8, help="sensor bit depth, 1 to 24 (default: %(default)s)")
     demo.add_argument(
-        "--ratio", type=_ratio, default=64.0, help="multi-shot neighbouring exposure ratio (default: %(default)s)"
+        "--ratio",
+        type=_ratio,
+        default=64.0,
+        help="multi-shot neighbouring exposure ratio, at most 2**bits - 1 (default: %(default)s)",
     )
     demo.add_argument(
         "--workers", type=_positive_int, default=None, help="processes for the single shot (default: one per core)"

@@ -141,6 +141,11 @@ def _multi_shot(
     return multi, multi_radiance, merged
 
 
+#: The radiance files the demo writes (a scene read from ``--out`` may not be one of them), then the frame above
+#: 16 bits.
+RADIANCE_OUTPUTS = ("single_shot.exr", "multi_shot.exr", "intensity_merge.exr", "modulus.exr")
+
+
 def _write_outputs(
     out: Path,
     path: Path,
@@ -163,11 +168,7 @@ def _write_outputs(
     }
     written = []
     metadata = {"bits": bits, "exposure": 1.0, "source": path.name}
-    for name, image in (
-        ("single_shot.exr", restored[0]),
-        ("multi_shot.exr", multi_radiance[0]),
-        ("intensity_merge.exr", merged[0]),
-    ):
+    for name, image in zip(RADIANCE_OUTPUTS[:3], (restored[0], multi_radiance[0], merged[0]), strict=True):
         io.write_image(out / name, image, metadata=metadata)
         written.append(out / name)
     # The camera frame in the narrowest file that holds it exactly: 8-bit or 16-bit PNG, or a float32 EXR.
@@ -228,10 +229,20 @@ def run_demo(
 
     Returns:
         A dict of the error figures, timings and written paths.
+
+    Raises:
+        ValueError: ``ratio`` outside ``(1, 2**bits - 1]``, a black scene, or a scene that is one of the radiance
+            files the demo writes in ``out_dir`` (it would be replaced).
     """
+    if not 1 < ratio <= 2**bits - 1:  # checked before any work: the multi-shot stage comes last
+        raise ValueError(
+            f"ratio must be more than 1 and at most 2**bits - 1 = {2**bits - 1} (bits={bits}); got {ratio}"
+        )
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     path = Path(scene) if scene is not None else default_scene_path()
+    if path.name in RADIANCE_OUTPUTS and path.resolve().parent == out.resolve():
+        raise ValueError(f"the scene {path} is one of the files the demo writes in {out}: choose another output folder")
+    out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
 
     hdr, counts = load_radiance(path, channels=3, with_counts=True)
