@@ -229,3 +229,42 @@ class TestParseMethod:
             protocols.parse_method("fast:tile")
         with pytest.raises(ValueError, match="method name"):
             protocols.parse_method(":tile=0")
+
+
+def test_downsampling_uses_the_smallest_factor() -> None:
+    # 1025 // 2 = 512: factor 2, not ceil(1025 / 512) = 3 (the validation scene belgium is 1025 x 769)
+    assert protocols.downsample_area(torch.zeros(1, 769, 1025), 512).shape == (1, 384, 512)
+    assert protocols.downsample_area(torch.zeros(1, 10, 10), 3).shape == (1, 3, 3)
+
+
+def test_load_scene_max_side_zero_is_refused(tmp_path) -> None:
+    path = io.write_image(tmp_path / "s.exr", torch.ones(3, 8, 8))
+    with pytest.raises(ValueError, match="max_side"):
+        protocols.load_scene(path, max_side=0)
+    assert protocols.load_scene(path, max_side=None).shape == (3, 8, 8)
+
+
+def test_protocol_b_checks_and_warns() -> None:
+    for bad, message in ((dict(peak=float("nan")), "peak must be finite"), (dict(period=0), "period must be")):
+        with pytest.raises(ValueError, match=message):
+            protocols.protocol_b(torch.rand(3, 4, 4), **bad)
+    scene = torch.zeros(3, 10, 10)
+    scene[:, 0, :5] = 1.0  # 5% of the pixels above the minimum: 20% cannot roll over
+    with pytest.warns(UserWarning, match=r"at most 0.050 of the pixels can roll over"):
+        counts = protocols.protocol_b(scene)
+    assert float(counts.max()) == 4095.0
+
+
+def test_protocol_n_refuses_non_finite_values() -> None:
+    with pytest.raises(ValueError, match="must be finite"):
+        protocols.protocol_n(torch.tensor([1.0, float("inf")]))
+
+
+def test_the_command_lines_single_shot_psnr_is_aligned_like_its_exact_k() -> None:
+    from torch_modulo._scene_rules import count_accuracy
+
+    truth = torch.arange(300.0, 364.0).view(1, 8, 8)  # every value rolled over once
+    modulus = torch.remainder(truth, 256.0)
+    shifted = modulus + 512.0  # right up to one global rollover
+    accuracy = count_accuracy(shifted, modulus, truth, 1.0, 8)
+    assert accuracy["exact_k"] == 1.0 and accuracy["psnr_db"] == math.inf  # it was 3 dB, unaligned

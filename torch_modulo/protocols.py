@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from pathlib import Path
 from typing import Literal, NamedTuple
 
@@ -173,7 +174,7 @@ def downsample_area(image: torch.Tensor, max_side: int) -> torch.Tensor:
     check_image_shape(image, "image", min_dims=3, max_dims=3)
     max_side = check_int(max_side, "max_side", 1)
     c, h, w = image.shape
-    f = max(1, math.ceil(max(h, w) / max_side))
+    f = max(h, w) // (max_side + 1) + 1  # the smallest f with max(h, w) // f <= max_side (incomplete blocks drop)
     if f == 1:
         return image
     fh, fw = min(f, h), min(f, w)
@@ -190,7 +191,7 @@ def load_scene(path: str | os.PathLike[str], max_side: int | None = 512) -> torc
     image = read_image(path)
     image = image[:3] if image.shape[0] >= 3 else image[:1]
     image = torch.nan_to_num(image.double(), nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
-    return downsample_area(image, max_side) if max_side else image
+    return downsample_area(image, max_side) if max_side is not None else image
 
 
 # --------------------------------------------------------------------------------------------------------------------
@@ -235,6 +236,10 @@ def protocol_a10(image: torch.Tensor) -> torch.Tensor:
 def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, period: float = 256.0) -> torch.Tensor:
     """(C, H, W) counts of min-max scaled RGB at the exposure that makes ``share`` of the pixels roll over.
 
+    Warns:
+        UserWarning: no exposure makes ``share`` of the pixels roll over (most pixels are at the minimum); the
+        counts are then those of the largest exposure tried (``2**40``).
+
     Example:
         >>> counts = protocol_b(torch.linspace(0, 1, 100).view(1, 1, 100))
         >>> round(float((counts >= 256).double().mean()), 2)
@@ -246,6 +251,10 @@ def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, pe
     share = check_real(share, "share")
     if not 0.0 < share < 1.0:
         raise ValueError(f"share must be in (0, 1); got {share}")
+    peak = check_real(peak, "peak", positive=True)
+    period = check_real(period, "period", positive=True)
+    if not period <= peak:
+        raise ValueError(f"period must be at most peak; got period={period}, peak={peak}")
     lo, hi = float(image.min()), float(image.max())
     x = (image - lo) / (hi - lo) if hi > lo else torch.zeros_like(image)
 
@@ -258,6 +267,14 @@ def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, pe
     e_lo, e_hi = 1e-6, 1.0
     while rolled(e_hi) < share and e_hi < 2.0**40:
         e_lo, e_hi = e_hi, e_hi * 2
+    if rolled(e_hi) < share:  # too few distinct bright values: every lit pixel is saturated, and still short
+        warnings.warn(
+            f"at most {rolled(e_hi):.3f} of the pixels can roll over (protocol B asks for {share}): the counts are "
+            "those of the largest exposure tried, every pixel above the minimum saturated",
+            UserWarning,
+            stacklevel=2,
+        )
+        return counts(e_hi)
     for _ in range(60):
         mid = math.sqrt(e_lo * e_hi)
         if rolled(mid) < share:
@@ -284,12 +301,15 @@ def protocol_n_levels(image: torch.Tensor) -> tuple[float, float]:
     """Protocol N's reference levels of a radiance map: the 0.1th percentile of its positive values, and its maximum.
 
     Raises:
-        ValueError: the image has no positive value.
+        TypeError: the image is not a floating tensor.
+        ValueError: the image has NaN or infinite values, or no positive value (negative values are ignored).
 
     Example:
         >>> protocol_n_levels(torch.tensor([0.0, 1.0, 2.0, 4.0]))
         (1.002, 4.0)
     """
+    check_floating(image, "image")
+    check_finite(image, "image")
     positive = image[image > 0].double()
     if not positive.numel():
         raise ValueError(
