@@ -37,6 +37,7 @@ from torch_modulo.capture import capture_intensity, capture_modulo
 from torch_modulo.metrics import exact_k_map, exact_k_share, psnr
 from torch_modulo.multishot import merge_intensity, unwrap_multi
 from torch_modulo.pipeline import load_radiance
+from torch_modulo.protocols import align_offsets
 from torch_modulo.singleshot import unwrap_confidence, unwrap_single
 from torch_modulo.tonemap import REC709_LUMA, tonemap_histogram
 
@@ -93,7 +94,7 @@ def _single_shot(
     single = {
         "method": method,
         "exact_k": float(exact_k_share(restored, truth, bits)[0]),
-        "psnr_db": float(psnr(restored, truth, peak=float(truth.max()))[0]),
+        "psnr_db": float(psnr(align_offsets(restored, truth, bits), truth, peak=float(truth.max()))[0]),  # as exact_k
         "saturated_in_intensity_image": float((intensity >= 2**bits - 1).double().mean()),
         "low_confidence_share": float(low.double().mean()),
         "wrong_k_flagged_low_confidence": float((wrong & low).sum() / wrong.sum()) if bool(wrong.any()) else 1.0,
