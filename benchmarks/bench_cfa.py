@@ -130,7 +130,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         out[way] = {
             "mean_exact_k": statistics.mean(r[way]["exact_k"] for r in rows),
             "mean_rolled_over_right": statistics.mean(rolled) if rolled else math.nan,
-            "mean_psnr_db": statistics.mean(min(r[way]["psnr"], 100.0) for r in rows),
+            "mean_psnr_db": statistics.mean(min(r[way]["psnr"], 100.0) for r in rows),  # a perfect scene: 100 dB
             "mean_psnr_rgb_db": statistics.mean(min(r[way]["psnr_rgb"], 100.0) for r in rows),
             "perfect_scenes": sum(r[way]["exact_k"] == 1.0 for r in rows),
         }
@@ -188,6 +188,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     scenes = select_scenes(args.data, args.scenes, args.split, args.max_scenes)
     print(f"protocol B mosaicked {args.cfa}: {len(scenes)} scenes, longest side {args.scale}, method {args.method}")
     print(header(), flush=True)
+    unwrap(torch.zeros(3, 16, 16), args)  # warm-up: the first call's start-up is not the first scene's time
+    unwrap(torch.zeros(1, 16, 16), args, cfa=args.cfa)
     rows = []
     for path in scenes:
         rows.append(run_scene(path, args))

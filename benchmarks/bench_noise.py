@@ -1,8 +1,9 @@
 """Protocol N: multi-shot recovery under sensor noise, modulo decoder against the oracle and the intensity merge.
 
-Every dev scene, RGB, longer side <= 512. The radiance is scaled so that the 0.1th percentile of its positive values
-reads 16 counts at the longest exposure (1); the scene needs ``ceil(log2(max / that percentile) + 4)`` stops; 8 bits.
-For each noise model (q = 1 e-/count with 1 e- read noise, q = 16 with 16 e-):
+Every dev scene, RGB (a grey scene as its one channel), longer side <= 512. The radiance is scaled so that the 0.1th
+percentile of its positive values reads 16 counts at the longest exposure (1); the scene needs
+``ceil(log2(max / that percentile) + 4)`` stops; 8 bits. For each noise model (q = 1 e-/count with 1 e- read
+noise, q = 16 with 16 e-):
 
 - modulo: exposures from ``plan_exposures(stops, 8, noise=noise)`` (the longest normalised to 1), captured by
   ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)``;

@@ -6,9 +6,10 @@ method, and print one row per scene, then per protocol and method a summary over
 scenes (``protocols.TRAIN_SOURCES``, the only ones a learned method may train on) and one over the validation
 scenes (``protocols.VALIDATION_SOURCES``; a learned method must not train on them): mean exact-k, mean
 rolled-over right (exact-k over the values whose true ``k > 0``), mean PSNR (peak 4095, 1023 under A10; after
-aligning each channel's global rollover offset), scenes recovered perfectly, seconds per megapixel per channel
-(total and median over scenes) and, where ``paper`` ran, the energy reached relative to the faithful solver (plus
-the truth's energy). A JSON line with the same summary ends the output.
+aligning each channel's global rollover offset; a perfect scene's infinite PSNR enters the mean as 100 dB), scenes
+recovered perfectly, seconds per megapixel per channel (total and median over scenes) and, where ``paper`` ran,
+the energy reached relative to the faithful solver (plus the truth's energy). A JSON line with the same summary
+ends the output.
 
 - Protocol A (paper style): luminance scaled so that its 99.9th percentile is 4095, clipped, floored.
 - Protocol A10: the same with the 99.9th percentile at 1023 (at most four rollovers).
@@ -25,7 +26,7 @@ et al. 2002, on ``I_m 2 pi / 256``, a baseline). Every scene is first downsample
 process (peak RSS above the process's RSS before the call).
 
 Examples:
-    python benchmarks/bench_single.py                                     # every scene, A A10 B, four methods
+    python benchmarks/bench_single.py                                     # every scene, A A10 B, five methods
     python benchmarks/bench_single.py --scenes qt-preview/landscape.hdr --methods guided fast   # a smoke run
     python benchmarks/bench_single.py --split validation --protocols A10 --methods guided skimage
     python benchmarks/bench_single.py --memory --methods paper fast
@@ -262,6 +263,19 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--memory", action="store_true", help="synthetic speed/memory scaling instead of scenes")
     ap.add_argument("--memory-sizes", nargs="+", type=float, default=[0.25, 1.0, 4.0])
     args = ap.parse_args(argv)
+    if args.scenes and args.split != "all":
+        ap.error("--scenes names the scenes: it does not combine with --split")
+    if args.memory:  # bench_memory's own synthetic scenes, one worker on the CPU
+        given = [
+            f"--{k.replace('_', '-')}"
+            for k in ("workers", "repeat", "scale", "protocols")
+            if getattr(args, k) != ap.get_default(k)
+        ]
+        given += ["--device"] * (args.device.type != "cpu") + ["--energy"] * args.energy
+        if given:
+            ap.error(
+                f"--memory runs bench_memory.py's scenes on the CPU with one worker: {' '.join(given)} would be ignored"
+            )
     return args
 
 

@@ -1,7 +1,8 @@
 """Time the tone-mapping operators as a ratio to ``tensor.clone()`` of the same batch, measured in the same run.
 
 Elementwise and global layers should stay close to the cost of a copy on a (8, 3, 1024, 1024) float32 batch (the
-goal for global operators: within 3x of clone). Each repeat times clone and then every operator once, in turn, so
+goal for global operators, BENCHMARKS.md's for elementwise and global layers: within 2x of clone; compiled variants
+are not timed here). Each repeat times clone and then every operator once, in turn, so
 machine noise hits them alike; the table gives medians, the median of the per-repeat ratios ("paired"), and the
 process CPU time (all threads) as a steadier figure on a shared machine.
 
@@ -38,7 +39,7 @@ GLOBAL_OPERATORS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
 LOCAL_OPERATORS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "clahe": lambda x: tmo.tonemap_clahe(x),
 }
-GOAL = 3.0
+GOAL = 2.0
 
 
 def _size(text: str) -> tuple[int, int, int, int]:
