@@ -55,7 +55,9 @@ message names the file.
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import hashlib
 import json
 import os
 import secrets
@@ -267,9 +269,66 @@ def _encode(pixels: torch.Tensor, kind: str, fmt: _Format, normalized: bool, pat
     return pixels.numpy().astype(np.float32)
 
 
+# The longest file name most file systems take (NAME_MAX), in bytes.
+_NAME_MAX = 255
+# Bytes a hidden temporary name adds to the name it stands for, at most: "." before it, and ".<pid>-<8 hex>.tmp"
+# (files) or ".tmp-<pid>-<8 hex>" / ".old-<pid>-<8 hex>" (folders) after it, for a process id of up to 10 digits.
+_TEMPORARY_EXTRA = 25
+
+
+def _name_bytes(text: str) -> int:
+    return len(os.fsencode(text))
+
+
+def temporary_stem(name: str, suffix: str = "") -> str:
+    """How the hidden temporary names beside the file or folder ``name`` spell it (used by :func:`write_image` and
+    :mod:`torch_modulo.batch.atomic`; not part of the public API).
+
+    ``name`` less ``suffix`` (a temporary name that keeps the extension at its end passes it). When the temporary
+    name would pass the file system's 255 bytes (``NAME_MAX``, counted in UTF-8 bytes, not characters), the part
+    kept is shortened to its first bytes (whole characters), ``~`` and 8 hex digits of a hash of the whole ``name``,
+    so a legal final name always has a legal temporary name and the clean-up still tells whose temporary it is.
+
+    Example:
+        >>> temporary_stem("scene.exr", ".exr")
+        'scene'
+        >>> short = temporary_stem("é" * 120 + ".exr", ".exr")
+        >>> len(short.encode()), short[-9:-8]
+        (225, '~')
+    """
+    stem = name[: len(name) - len(suffix)] if suffix and name.endswith(suffix) else name
+    room = _NAME_MAX - _TEMPORARY_EXTRA - _name_bytes(suffix)
+    if _name_bytes(stem) <= room:
+        return stem
+    digest = hashlib.sha256(os.fsencode(name)).hexdigest()[:8]
+    budget, used, kept = max(room - 9, 0), 0, []
+    for char in stem:
+        size = _name_bytes(char)
+        if used + size > budget:
+            break
+        kept.append(char)
+        used += size
+    return f"{''.join(kept)}~{digest}"
+
+
 def _temporary_sibling(path: Path) -> Path:
-    """A hidden file beside ``path`` with the same extension, so OpenImageIO picks the same format."""
-    return path.with_name(f".{path.stem}.{os.getpid()}-{secrets.token_hex(4)}.tmp{path.suffix}")
+    """A hidden file beside ``path`` with the same extension, so OpenImageIO picks the same format; its name is at
+    most 255 bytes when ``path``'s is (:func:`temporary_stem`)."""
+    stem = temporary_stem(path.name, path.suffix)
+    return path.with_name(f".{stem}.{os.getpid()}-{secrets.token_hex(4)}.tmp{path.suffix}")
+
+
+def _naming_final(error: OSError, tmp: Path, path: Path) -> OSError:
+    """``error`` (same type, errno and text) naming ``path`` wherever it named the temporary file ``tmp``."""
+    if error.filename != str(tmp) and str(tmp) not in str(error):
+        return error
+
+    def fix(text: object) -> object:
+        return text.replace(str(tmp), str(path)) if isinstance(text, str) else text
+
+    if error.errno is not None and error.strerror is not None:
+        return type(error)(error.errno, fix(error.strerror), fix(error.filename))
+    return type(error)(*(fix(arg) for arg in error.args))
 
 
 # ------------------------------------------------------------------------------------------------ public API
@@ -476,8 +535,16 @@ def write_image(
     try:
         _write_checked(tmp, spec, np.ascontiguousarray(array), fmt, path)
         os.replace(tmp, path)
+    except OSError as error:
+        with contextlib.suppress(OSError):  # on a read-only folder this fails too; the first error is the one to see
+            tmp.unlink(missing_ok=True)
+        fixed = _naming_final(error, tmp, path)
+        if fixed is error:
+            raise
+        raise fixed from error
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
         raise
     return path
 

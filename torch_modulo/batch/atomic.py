@@ -8,8 +8,12 @@ reader never sees half a file. The temporary names carry the writing process's i
 - folders: ``.<name>.tmp-<pid>-<hex>`` and, while an old folder is being replaced, ``.<name>.old-<pid>-<hex>``
   (:func:`atomic_output_dir`).
 
+A name so long that its temporary name would pass the file system's 255 bytes is spelt shorter in it: its first
+bytes, ``~`` and a hash of the whole name (:func:`torch_modulo.io.temporary_stem`).
+
 A process killed outright (``kill -9``, power loss) leaves them behind; :func:`remove_stale_temporaries` deletes
-those whose process no longer runs on this machine. Errors name the final path, never the temporary one.
+those whose process no longer runs on this machine, after putting back an old folder that a kill left moved aside.
+Errors name the final path, never the temporary one.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+from torch_modulo.io import temporary_stem
+
 __all__ = [
     "atomic_output_dir",
     "final_names",
@@ -37,11 +43,13 @@ __all__ = [
 # .<name>.<pid>-<hex>.tmp[<suffix>]: temporary files (JSON, images)
 _FILE = re.compile(r"^\.(?P<base>.+)\.(?P<pid>\d+)-[0-9a-f]+\.tmp(?P<suffix>\.[^./]+)?$")
 # .<name>.tmp-<pid>-<hex> and .<name>.old-<pid>-<hex>: temporary and replaced folders
-_FOLDER = re.compile(r"^\.(?P<base>.+)\.(?:tmp|old)-(?P<pid>\d+)-[0-9a-f]+$")
-# The same names inside a longer text (an error message): the folder part, then the name.
+_FOLDER = re.compile(r"^\.(?P<base>.+)\.(?P<kind>tmp|old)-(?P<pid>\d+)-[0-9a-f]+$")
+# The same names inside a longer text (an error message), after a "/", a quote, a space or at the start. Names may
+# hold spaces ("my scene"), not "/" or quotes.
 _IN_TEXT = re.compile(
-    r"/\.(?P<fbase>[^/\s'\"]+?)\.\d+-[0-9a-f]+\.tmp(?P<suffix>\.[A-Za-z0-9]+)?(?=$|[/\s'\":,)])"
-    r"|/\.(?P<dbase>[^/\s'\"]+?)\.(?:tmp|old)-\d+-[0-9a-f]+(?=$|[/\s'\":,)])"
+    r"(?:(?<=/)|(?<=[\s'\"(])|^)\.(?P<fbase>[^/'\"]+?)\.\d+-[0-9a-f]+\.tmp(?P<suffix>\.[A-Za-z0-9]+)?"
+    r"(?=$|[/\s'\":,;)])"
+    r"|(?:(?<=/)|(?<=[\s'\"(])|^)\.(?P<dbase>[^/'\"]+?)\.(?:tmp|old)-\d+-[0-9a-f]+(?=$|[/\s'\":,;)])"
 )
 
 
@@ -56,19 +64,26 @@ def _naming_final(error: OSError, final: Path) -> OSError:
     return OSError(error.errno, error.strerror, str(final))
 
 
+def _discard(tmp: Path) -> None:
+    """Remove a temporary file, if there is one; a failure here (a read-only folder) must not hide the error that
+    is being handled."""
+    with contextlib.suppress(OSError):
+        tmp.unlink(missing_ok=True)
+
+
 def _write_atomic(path: Path, write: Callable[[Path], object]) -> Path:
     """``write(temporary)`` beside ``path``, then rename it to ``path``; on failure nothing is left, and an
     ``OSError`` names ``path``."""
-    tmp = path.with_name(f".{path.name}.{_tag()}.tmp")
+    tmp = path.with_name(f".{temporary_stem(path.name)}.{_tag()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write(tmp)
         os.replace(tmp, path)
     except OSError as error:
-        tmp.unlink(missing_ok=True)
+        _discard(tmp)
         raise _naming_final(error, path) from error
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        _discard(tmp)
         raise
     return path
 
@@ -122,7 +137,9 @@ def atomic_output_dir(final: str | os.PathLike[str]) -> Iterator[Path]:
     """
     final = Path(final)
     tag = _tag()
-    tmp = final.with_name(f".{final.name}.tmp-{tag}")
+    stem = temporary_stem(final.name)
+    tmp = final.with_name(f".{stem}.tmp-{tag}")
+    old = final.with_name(f".{stem}.old-{tag}")
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()
@@ -131,21 +148,37 @@ def atomic_output_dir(final: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield tmp
         if final.exists():
-            old = final.with_name(f".{final.name}.old-{tag}")
             os.replace(final, old)
-            os.replace(tmp, final)
+            try:
+                os.replace(tmp, final)
+            except BaseException:
+                with contextlib.suppress(OSError):  # if this fails too, both stay: the next run's clean-up puts
+                    os.replace(old, final)  # ``old`` back; the error to see is the first one
+                raise
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, final)
     except OSError as error:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _discard_folder(tmp, old, final)
+
+        def fix(text: str) -> str:
+            return final_names(text.replace(str(tmp), str(final)))
+
         if error.errno is None:
-            raise OSError(final_names(str(error))) from error
-        where = final_names(error.filename) if isinstance(error.filename, str) else str(final)
+            raise OSError(fix(str(error))) from error
+        where = fix(error.filename) if isinstance(error.filename, str) else str(final)
         raise OSError(error.errno, error.strerror, where) from error
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _discard_folder(tmp, old, final)
         raise
+
+
+def _discard_folder(tmp: Path, old: Path, final: Path) -> None:
+    """Remove the temporary folder ``tmp`` of a swap that failed, unless the old folder ``old`` could not be put
+    back as ``final``: then both stay, for :func:`remove_stale_temporaries` to restore ``old``."""
+    if os.path.lexists(old) and not os.path.lexists(final):
+        return
+    shutil.rmtree(tmp, ignore_errors=True)
 
 
 def final_names(text: str) -> str:
@@ -159,10 +192,15 @@ def final_names(text: str) -> str:
 
     def final(match: re.Match[str]) -> str:
         if match.group("fbase") is not None:
-            return f"/{match.group('fbase')}{match.group('suffix') or ''}"
-        return f"/{match.group('dbase')}"
+            return f"{match.group('fbase')}{match.group('suffix') or ''}"
+        return match.group("dbase")
 
-    return _IN_TEXT.sub(final, text)
+    for _ in range(4):  # a temporary of a temporary (a stack's folder built inside a batch's) takes two passes
+        fixed = _IN_TEXT.sub(final, text)
+        if fixed == text:
+            break
+        text = fixed
+    return text
 
 
 def _running(pid: int) -> bool:
@@ -191,8 +229,15 @@ def remove_stale_temporaries(finals: Iterable[str | os.PathLike[str]]) -> list[P
     are left alone. Writers on other machines are not seen: do not run two batches into one output folder from
     several machines at once.
 
+    A temporary of a temporary (``..<name>.tmp-<pid>-<hex>.tmp-<pid>-<hex>``: a stack folder built inside a batch's
+    temporary folder) is removed too, once all its writers are gone.
+
+    A writer killed between the two renames of a folder swap leaves the old folder moved aside
+    (``.<name>.old-<pid>-<hex>``), the new one beside it (``.<name>.tmp-<pid>-<hex>``) and no ``<name>``: the old
+    folder is then renamed back to ``<name>`` (nothing of it is lost) and the new one removed.
+
     Returns:
-        The paths removed, sorted.
+        The paths removed, sorted (an old folder put back is not among them).
 
     Example:
         >>> import tempfile
@@ -208,17 +253,25 @@ def remove_stale_temporaries(finals: Iterable[str | os.PathLike[str]]) -> list[P
     removed: list[Path] = []
     for folder, names in wanted.items():
         try:
-            entries = list(os.scandir(folder))
+            entries = [entry for entry in os.scandir(folder) if entry.name.startswith(".")]
         except OSError:  # no folder yet (a first run), or unreadable: nothing to clean there
             continue
+        # How temporary names spell each name they may stand for: a final name, or (for a temporary of a
+        # temporary) the name of another hidden entry here; long names are spelt shorter (temporary_stem).
+        spelt: dict[str, str] = {}
+        for name in [entry.name for entry in entries] + sorted(names):
+            spelt[name] = name
+            for suffix in {"", Path(name).suffix}:
+                spelt.setdefault(temporary_stem(name, suffix) + suffix, name)
+        stale: list[tuple[os.DirEntry[str], str, bool]] = []  # (entry, final name, it is a folder moved aside)
         for entry in entries:
-            if not entry.name.startswith("."):
-                continue
-            match = _FILE.match(entry.name) or _FOLDER.match(entry.name)
-            if match is None:
-                continue
-            base = match.group("base") + (match.groupdict().get("suffix") or "")
-            if base not in names or _running(int(match.group("pid"))):
+            found = _stands_for(entry.name, names, spelt)
+            if found is not None and not any(_running(pid) for pid in found[1]):
+                stale.append((entry, found[0], found[2]))
+        present = {entry.name for entry in entries}
+        keep = _restore_old_folders(folder, stale, present)
+        for entry, _, _ in stale:
+            if entry.name in keep:
                 continue
             path = Path(entry.path)
             with contextlib.suppress(FileNotFoundError):
@@ -230,13 +283,102 @@ def remove_stale_temporaries(finals: Iterable[str | os.PathLike[str]]) -> list[P
     return sorted(removed)
 
 
+def _readings(name: str) -> list[tuple[str, int, str]]:
+    """Each way ``name`` reads as a temporary name: (the name it spells, the writer's process id, ``"file"``,
+    ``"tmp"`` or ``"old"``)."""
+    readings = []
+    match = _FILE.match(name)
+    if match is not None:
+        readings.append((match.group("base") + (match.group("suffix") or ""), int(match.group("pid")), "file"))
+    match = _FOLDER.match(name)
+    if match is not None:
+        readings.append((match.group("base"), int(match.group("pid")), match.group("kind")))
+    return readings
+
+
+def _stands_for(
+    name: str, finals: set[str], spelt: dict[str, str], depth: int = 0
+) -> tuple[str, list[int], bool] | None:
+    """The final name (one of ``finals``) that the temporary name ``name`` stands for, directly or through
+    temporaries of temporaries; the process ids of its writers; and whether it is a folder moved aside
+    (``.<final>.old-...``, directly). ``None`` when ``name`` stands for none of ``finals``."""
+    for base, pid, kind in _readings(name):
+        targets = [spelt[base]] if base in spelt else []
+        if base not in targets:
+            targets.append(base)  # a temporary name spelt out, whose entry is gone already
+        for target in targets:
+            if target in finals:
+                return target, [pid], kind == "old"
+            if depth < 4 and target.startswith("."):
+                inner = _stands_for(target, finals, spelt, depth + 1)
+                if inner is not None:
+                    return inner[0], [pid, *inner[1]], False
+    return None
+
+
+def _restore_old_folders(folder: Path, stale: list[tuple[os.DirEntry[str], str, bool]], present: set[str]) -> set[str]:
+    """Rename back to its final name each old folder a writer killed between the two renames of a folder swap left
+    moved aside (the final name is missing and the writer's new folder, same tag, is still there).
+
+    Returns:
+        The names of the entries to keep: those put back, and both folders of a swap whose old folder could not be
+        put back (a later run tries again).
+    """
+    keep: set[str] = set()
+    candidates = []
+    for entry, final, moved_aside in stale:
+        if not moved_aside or not entry.is_dir(follow_symlinks=False):
+            continue
+        cut = entry.name.rfind(".old-")
+        partner = f"{entry.name[:cut]}.tmp-{entry.name[cut + 5 :]}"
+        if partner in present:
+            with contextlib.suppress(OSError):
+                candidates.append((entry.stat(follow_symlinks=False).st_mtime_ns, entry, final, partner))
+    for _, entry, final, partner in sorted(candidates, key=lambda c: c[0], reverse=True):  # the newest first
+        target = folder / final
+        if os.path.lexists(target):
+            continue
+        try:
+            os.rename(entry.path, target)
+        except OSError:
+            keep.add(partner)
+        keep.add(entry.name)
+    return keep
+
+
+def _inside(path: str, folder: Path) -> bool:
+    try:
+        return os.path.commonpath([os.path.abspath(path), os.path.abspath(folder)]) == os.path.abspath(folder)
+    except ValueError:
+        return False
+
+
+def _while_writing(error: OSError, folder: Path) -> bool:
+    """Whether ``error`` comes from writing an output: it says it could not write, or it names a path in the
+    output ``folder`` or a temporary name."""
+    text = str(error)
+    if "cannot write " in text or _IN_TEXT.search(text):
+        return True
+    for name in (error.filename, error.filename2):
+        if isinstance(name, str | bytes | os.PathLike):
+            name = os.fsdecode(name)
+            if _inside(name, folder) or _readings(os.path.basename(name)):
+                return True
+    return False
+
+
 def free_space_note(error: BaseException, folder: Path) -> str:
-    """``"; No space left on device (0 bytes free in FOLDER)"`` when ``folder``'s file system is full, else ``""``.
+    """``"; No space left on device (0 bytes free in FOLDER)"`` when ``error`` comes from writing an output into
+    ``folder`` (it says it could not write, or names a path there or a temporary name) and ``folder``'s file system
+    is full, else ``""``.
 
     Writers that report a failed write without the system's reason (image libraries do) leave the cause out of
-    their message; the batch adds it where the disk is the likely cause.
+    their message; the batch adds it where the disk is the likely cause. An error reading an input (a corrupt
+    file) is never blamed on the disk, nor is one that already gives the reason (``ENOSPC``, ``EDQUOT``).
     """
-    if not isinstance(error, OSError) or error.errno == errno.ENOSPC:
+    if not isinstance(error, OSError) or error.errno in (errno.ENOSPC, errno.EDQUOT):
+        return ""
+    if not _while_writing(error, folder):
         return ""
     try:
         stat = os.statvfs(folder)

@@ -7,8 +7,9 @@ folder that the new content does not replace and that are not listed as ``replac
 until the rename.
 
 The temporary names follow :mod:`torch_modulo.batch.atomic`: ``.<name>.tmp-<pid>-<hex>`` for the folder being
-built and ``.<name>.old-<pid>-<hex>`` for the old one while it is replaced, so a clean-up of stale temporaries
-finds both.
+built and ``.<name>.old-<pid>-<hex>`` for the old one while it is replaced (a long name spelt shorter, as
+:func:`torch_modulo.io.temporary_stem` says), so a clean-up of stale temporaries finds both; when a process is
+killed between the two renames, the clean-up puts the old folder back.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import secrets
 import shutil
 from collections.abc import Callable, Collection
 from pathlib import Path
+
+from torch_modulo.io import temporary_stem
 
 __all__ = ["replace_folder"]
 
@@ -61,9 +64,14 @@ def replace_folder(final: Path, build: Callable[[Path], None], replaced: Collect
     if final.exists() and not final.is_dir():
         raise NotADirectoryError(f"cannot write a frame stack to {final}: it exists and is not a folder")
     tag = f"{os.getpid()}-{secrets.token_hex(4)}"
-    tmp = final.with_name(f".{final.name}.tmp-{tag}")
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp.mkdir()
+    stem = temporary_stem(final.name)
+    tmp = final.with_name(f".{stem}.tmp-{tag}")
+    old = final.with_name(f".{stem}.old-{tag}")
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp.mkdir()
+    except OSError as error:
+        raise _naming_final(error, tmp, final) from error
     try:
         build(tmp)
         if not final.exists():
@@ -71,32 +79,42 @@ def replace_folder(final: Path, build: Callable[[Path], None], replaced: Collect
             return
         _carry(final, tmp, replaced)
         here = _cwd()
-        old = final.with_name(f".{final.name}.old-{tag}")
         os.replace(final, old)
         try:
             os.replace(tmp, final)
         except BaseException:
-            os.replace(old, final)
+            with contextlib.suppress(OSError):  # if this fails too, both stay: the next run's clean-up puts
+                os.replace(old, final)  # ``old`` back; the error to see is the first one
             raise
         if here == final:
             os.chdir(final)  # the process stood in the old folder, which is about to be deleted
     except OSError as error:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _discard(tmp, old, final)
         raise _naming_final(error, tmp, final) from error
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _discard(tmp, old, final)
         raise
     shutil.rmtree(old, ignore_errors=True)
 
 
+def _discard(tmp: Path, old: Path, final: Path) -> None:
+    """Remove the new folder of a swap that failed, unless the old one could not be put back under the final name:
+    then both stay, for the next clean-up of stale temporaries to restore the old one."""
+    if os.path.lexists(old) and not os.path.lexists(final):
+        return
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
 def _naming_final(error: OSError, tmp: Path, final: Path) -> OSError:
-    """The same error (type, errno and text) with the temporary folder's name replaced by the final one."""
+    """The same error (type, errno and text) with the temporary folder's name replaced by the final one; an error
+    that names no file (a write that failed on close, a full disk) names the final folder."""
 
     def fix(text: object) -> object:
         return text.replace(str(tmp), str(final)) if isinstance(text, str) else text
 
     if error.errno is not None and error.strerror is not None:
-        return type(error)(error.errno, fix(error.strerror), fix(error.filename))
+        where = str(final) if error.filename is None else fix(error.filename)
+        return type(error)(error.errno, fix(error.strerror), where)
     return type(error)(*(fix(arg) for arg in error.args))
 
 
