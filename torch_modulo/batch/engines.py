@@ -244,6 +244,24 @@ def _pool_context(preload: Sequence[str]) -> multiprocessing.context.BaseContext
 #: What a pool that could not start (or broke while starting) raises in the parent.
 _START_ERRORS = (BrokenProcessPool, EOFError, ConnectionError, OSError)
 
+#: The error of a task whose worker process died when the pool broke, and again when the task ran alone.
+_WORKER_DIED = "BrokenProcessPool: the worker process died (killed, or out of memory), also when this input ran alone"
+
+
+def _new_pool(workers: int, threads: int | None, preload: Sequence[str]) -> ProcessPoolExecutor:
+    executor = ProcessPoolExecutor(
+        workers, mp_context=_pool_context(preload), initializer=_init_worker, initargs=(threads,)
+    )
+    # Start the workers, then the pool's thread, now (as the pool does with "fork") rather than one worker per
+    # submit: on Python 3.11 a worker that a submit starts while another dies is never stopped, and the broken pool
+    # waits for it forever.
+    if hasattr(executor, "_launch_processes") and hasattr(executor, "_start_executor_manager_thread"):
+        try:
+            executor._launch_processes()
+        finally:  # the thread also stops the workers already started
+            executor._start_executor_manager_thread()
+    return executor
+
 
 def run_pool(
     tasks: Sequence[Task],
@@ -255,15 +273,21 @@ def run_pool(
     preload: Sequence[str],
     stop: Stop,
 ) -> None:
-    """Run in ``workers`` processes, at most two tasks per worker queued, until done or asked to stop."""
+    """Run in ``workers`` processes, at most two tasks per worker queued, until done or asked to stop.
+
+    A worker process that dies (killed, out of memory, a crash in a reader) breaks the pool and every task in
+    flight with it: those tasks run again in a new pool, one at a time, and one that kills its worker again is
+    reported failed; then the rest of the queue goes on.
+    """
     queue = list(tasks)
     queue.reverse()
     running: dict[Future[dict[str, Any]], Task] = {}
+    alone: list[Task] = []  # in flight when a worker died: run again one at a time (on top of the queue)
+    came_back = False  # a task came back from a worker (since the start, or since workers died with no task)
+    killers = 0  # tasks that then killed their worker when they ran alone
     executor: ProcessPoolExecutor | None = None
     try:
-        executor = ProcessPoolExecutor(
-            workers, mp_context=_pool_context(preload), initializer=_init_worker, initargs=(threads,)
-        )
+        executor = _new_pool(workers, threads, preload)
         while queue or running:
             if stop.requested:
                 queue.clear()
@@ -272,17 +296,50 @@ def run_pool(
                         running.pop(future)
                 if not running:
                     break
-            while queue and len(running) < 2 * workers:
-                task = queue.pop()
-                running[executor.submit(execute, job, task, options, threads)] = task
-            finished, _ = wait(list(running), timeout=_POLL_S, return_when=FIRST_COMPLETED)
-            for future in finished:
+            try:
+                while queue and len(running) < (1 if alone else 2 * workers):
+                    future = executor.submit(execute, job, queue[-1], options, threads)
+                    running[future] = queue.pop()
+                finished, _ = wait(list(running), timeout=_POLL_S, return_when=FIRST_COMPLETED)
+                broken = any(isinstance(f.exception(), BrokenProcessPool) for f in finished)
+            except BrokenProcessPool:  # from submit: a worker died since the last wait
+                broken = True
+            if broken:  # the pool fails every task in flight: wait for them all
+                finished, _ = wait(list(running))
+            lost: list[Task] = []
+            for future in [f for f in running if f in finished]:
                 task = running.pop(future)
                 try:
                     result = future.result()
-                except Exception as error:  # the worker process died (killed, out of memory, ...)
+                except BrokenProcessPool:
+                    lost.append(task)
+                    continue
+                except Exception as error:  # the result could not come back
                     result = {"ok": False, "seconds": 0.0, "error": f"{type(error).__name__}: {error}"}
+                came_back = True
+                if task in alone:
+                    alone.remove(task)
                 on_result(task, result)
+            if broken and not stop.requested:  # (after a stop, the tasks lost are not finished, as after any stop)
+                if not lost:  # the workers died with no task in flight: they cannot start, unless they did before
+                    if not came_back:
+                        raise BrokenProcessPool("the worker processes die as they start")
+                    came_back, killers = False, 0
+                elif lost[0] in alone:  # it ran alone: it is the one that kills its worker
+                    if killers and not came_back:  # a second one, and no task came back: no worker can start
+                        raise BrokenProcessPool("the worker processes die as they start")
+                    killers += 1
+                    alone.remove(lost[0])
+                    on_result(lost[0], {"ok": False, "seconds": 0.0, "error": _WORKER_DIED})
+                else:
+                    stop.log(
+                        f"a worker process died (killed, or out of memory): the {len(lost)} task(s) in flight run "
+                        "again, one at a time"
+                    )
+                    alone = lost
+                    queue.extend(reversed(lost))
+                executor.shutdown(wait=True)
+                executor = _new_pool(workers, threads, preload)
     except _START_ERRORS:
         if not stop.requested:  # a pool that cannot start without being asked to stop: a real error
             raise
