@@ -287,7 +287,11 @@ def _add_demo(commands: Any) -> None:
         help="multi-shot neighbouring exposure ratio, at most 2**bits - 1 (default: %(default)s)",
     )
     demo.add_argument(
-        "--workers", type=_positive_int, default=None, help="processes for the single shot (default: one per core)"
+        "--workers",
+        type=_positive_int,
+        default=None,
+        help="processes for the single shot with --method guided, fast or paper (default: one per core; learned "
+        "and lsq run in this process)",
     )
     demo.add_argument(
         "--method",
@@ -316,7 +320,7 @@ def _add_simulate(commands: Any) -> None:  # long only because of the options' h
         help="HDR files -> simulated modulo frame stacks (training data)",
         formatter_class=_Formatter,
         description=_wrap(
-            "Capture every HDR radiance file in IN (.exr .hdr .pfm .tif) with a simulated modulo sensor (paper "
+            "Capture every HDR radiance file in IN (.exr .hdr .pfm .tif .tiff) with a simulated modulo sensor (paper "
             "Eq. 1, with shot and read noise by default, as torch_modulo.sensors.SimulatedModuloSensor()) at each "
             "exposure, and write one frame stack per scene: the folder OUT/<scene>/ with one frame per exposure "
             "(frame_b000_m00.exr, ...; each frame's exposure and bit depth in its metadata), the manifest "
@@ -358,7 +362,7 @@ def _add_simulate(commands: Any) -> None:  # long only because of the options' h
         "--seed",
         type=_nonnegative_int,
         default=0,
-        help="noise seed; each scene draws from a seed derived from it and its file name, so "
+        help="noise seed; each scene draws from a seed derived from it and its path relative to IN, so "
         "results do not depend on workers or ranks (default: 0)",
     )
     simulate.add_argument(
@@ -410,7 +414,8 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
             "stack's metadata (see --noise; where none is recorded, noise-free: paper Eqs. 6-7); stacks of a "
             "conventional sensor, kind 'intensity', are merged with merge_intensity instead. With --single (paper "
             "Eqs. 3-5): every stack of one exposure (`torch-modulo simulate --exposures 1`) and every modulus "
-            "image in IN outside the stacks (.exr .png .tif .pfm) is unwrapped alone (unwrap_single, see --method) "
+            "image in IN outside the stacks (.exr .png .tif .tiff .pfm) is unwrapped alone (unwrap_single, see "
+            "--method) "
             "and becomes OUT/<name>.exr, the restored counts divided by the frame's exposure. Output values are "
             "radiance in counts per unit exposure; the metadata records the source, bit depth, exposures and noise "
             "model. Where a stack holds its ground truth (radiance.exr, as simulate writes it) the report scores "
@@ -508,7 +513,8 @@ def _add_tonemap(commands: Any) -> None:
         help="radiance files -> display PNGs",
         formatter_class=_Formatter,
         description=_wrap(
-            "Tone-map every radiance file in IN (.exr .hdr .pfm .tif) to OUT/<name>.png with one of the operators "
+            "Tone-map every radiance file in IN (.exr .hdr .pfm .tif .tiff) to OUT/<name>.png with one of the "
+            "operators "
             "of torch_modulo.tonemap: histogram (Larson et al. 1997, the paper's choice), reinhard, gamma, log, "
             "clahe. The PNGs are sRGB-encoded for display (see --srgb). Negative values (lossy files) are clamped "
             "to 0; of more than three channels (alpha, other views or layers) the first three are taken as RGB."
