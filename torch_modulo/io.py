@@ -311,6 +311,36 @@ def temporary_stem(name: str, suffix: str = "") -> str:
     return f"{''.join(kept)}~{digest}"
 
 
+def _folder_temporaries(final: Path) -> tuple[Path, Path]:
+    """The hidden names beside the folder ``final`` that a swap builds it under (``.<name>.tmp-<pid>-<hex>``) and
+    moves the old one aside to (``.<name>.old-<pid>-<hex>``, same tag), for :mod:`torch_modulo.batch.atomic` and
+    the frame stacks' writer."""
+    tag = f"{os.getpid()}-{secrets.token_hex(4)}"
+    stem = temporary_stem(final.name)
+    return final.with_name(f".{stem}.tmp-{tag}"), final.with_name(f".{stem}.old-{tag}")
+
+
+def _swap_folder(tmp: Path, final: Path, old: Path) -> None:
+    """Move the existing ``final`` aside to ``old`` and ``tmp`` into its place; if the second rename fails, put the
+    old folder back (if that fails too, both stay: the next clean-up of stale temporaries puts ``old`` back) and
+    raise the first error."""
+    os.replace(final, old)
+    try:
+        os.replace(tmp, final)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.replace(old, final)
+        raise
+
+
+def _discard_folder(tmp: Path, old: Path, final: Path) -> None:
+    """Remove the new folder ``tmp`` of a swap that failed, unless the old folder ``old`` could not be put back as
+    ``final``: then both stay, for the clean-up of stale temporaries to restore ``old``."""
+    if os.path.lexists(old) and not os.path.lexists(final):
+        return
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
 def _temporary_sibling(path: Path) -> Path:
     """A hidden file beside ``path`` with the same extension, so OpenImageIO picks the same format; its name is at
     most 255 bytes when ``path``'s is (:func:`temporary_stem`)."""

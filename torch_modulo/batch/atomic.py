@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from torch_modulo.io import temporary_stem
+from torch_modulo.io import _discard_folder, _folder_temporaries, _swap_folder, temporary_stem
 
 __all__ = [
     "atomic_output_dir",
@@ -136,10 +136,7 @@ def atomic_output_dir(final: str | os.PathLike[str]) -> Iterator[Path]:
         (['scene'], ['frame.txt'])
     """
     final = Path(final)
-    tag = _tag()
-    stem = temporary_stem(final.name)
-    tmp = final.with_name(f".{stem}.tmp-{tag}")
-    old = final.with_name(f".{stem}.old-{tag}")
+    tmp, old = _folder_temporaries(final)
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()
@@ -148,13 +145,7 @@ def atomic_output_dir(final: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield tmp
         if final.exists():
-            os.replace(final, old)
-            try:
-                os.replace(tmp, final)
-            except BaseException:
-                with contextlib.suppress(OSError):  # if this fails too, both stay: the next run's clean-up puts
-                    os.replace(old, final)  # ``old`` back; the error to see is the first one
-                raise
+            _swap_folder(tmp, final, old)
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, final)
@@ -171,14 +162,6 @@ def atomic_output_dir(final: str | os.PathLike[str]) -> Iterator[Path]:
     except BaseException:
         _discard_folder(tmp, old, final)
         raise
-
-
-def _discard_folder(tmp: Path, old: Path, final: Path) -> None:
-    """Remove the temporary folder ``tmp`` of a swap that failed, unless the old folder ``old`` could not be put
-    back as ``final``: then both stay, for :func:`remove_stale_temporaries` to restore ``old``."""
-    if os.path.lexists(old) and not os.path.lexists(final):
-        return
-    shutil.rmtree(tmp, ignore_errors=True)
 
 
 def final_names(text: str) -> str:

@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import contextlib
 import os
-import secrets
 import shutil
 from collections.abc import Callable, Collection
 from pathlib import Path
 
-from torch_modulo.io import temporary_stem
+from torch_modulo.io import _discard_folder, _folder_temporaries, _swap_folder
 
 __all__ = ["replace_folder"]
 
@@ -63,10 +62,7 @@ def replace_folder(final: Path, build: Callable[[Path], None], replaced: Collect
     final = Path(os.path.realpath(final))
     if final.exists() and not final.is_dir():
         raise NotADirectoryError(f"cannot write a frame stack to {final}: it exists and is not a folder")
-    tag = f"{os.getpid()}-{secrets.token_hex(4)}"
-    stem = temporary_stem(final.name)
-    tmp = final.with_name(f".{stem}.tmp-{tag}")
-    old = final.with_name(f".{stem}.old-{tag}")
+    tmp, old = _folder_temporaries(final)
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()
@@ -79,30 +75,16 @@ def replace_folder(final: Path, build: Callable[[Path], None], replaced: Collect
             return
         _carry(final, tmp, replaced)
         here = _cwd()
-        os.replace(final, old)
-        try:
-            os.replace(tmp, final)
-        except BaseException:
-            with contextlib.suppress(OSError):  # if this fails too, both stay: the next run's clean-up puts
-                os.replace(old, final)  # ``old`` back; the error to see is the first one
-            raise
+        _swap_folder(tmp, final, old)
         if here == final:
             os.chdir(final)  # the process stood in the old folder, which is about to be deleted
     except OSError as error:
-        _discard(tmp, old, final)
+        _discard_folder(tmp, old, final)
         raise _naming_final(error, tmp, final) from error
     except BaseException:
-        _discard(tmp, old, final)
+        _discard_folder(tmp, old, final)
         raise
     shutil.rmtree(old, ignore_errors=True)
-
-
-def _discard(tmp: Path, old: Path, final: Path) -> None:
-    """Remove the new folder of a swap that failed, unless the old one could not be put back under the final name:
-    then both stay, for the next clean-up of stale temporaries to restore the old one."""
-    if os.path.lexists(old) and not os.path.lexists(final):
-        return
-    shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _naming_final(error: OSError, tmp: Path, final: Path) -> OSError:
