@@ -266,7 +266,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if args.scenes and args.split != "all":
         ap.error("--scenes names the scenes: it does not combine with --split")
     if args.memory:  # bench_memory's own synthetic scenes, one worker on the CPU
-        given = [
+        given = ["--scenes"] * bool(args.scenes) + ["--split"] * (args.split != "all")
+        given += ["--max-scenes"] * bool(args.max_scenes) + ["--data"] * (args.data != protocols.DEV_SCENES)
+        given += [
             f"--{k.replace('_', '-')}"
             for k in ("workers", "repeat", "scale", "protocols")
             if getattr(args, k) != ap.get_default(k)

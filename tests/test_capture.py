@@ -328,3 +328,12 @@ def test_nested_list_exposures_are_a_batch_of_stacks() -> None:
     assert torch.equal(nested, tm.capture_stack(x, torch.tensor([[1.0, 4.0], [2.0, 8.0]]), 8))
     with pytest.raises(TypeError, match=r"exposures must be a sequence of numbers .*\[\[1.0, 4.0\], \[2.0\]\]"):
         tm.capture_stack(x, [[1.0, 4.0], [2.0]], 8)
+
+
+def test_exposures_as_any_numbers() -> None:
+    from fractions import Fraction
+
+    x = torch.rand(1, 1, 4, 4) * 50
+    expected = tm.capture_stack(x, [0.5, 3.0], 8)
+    for exposures in ([Fraction(1, 2), Fraction(3)], [torch.tensor([0.5]), torch.tensor([3.0])], (0.5, 3)):
+        assert torch.equal(tm.capture_stack(x, exposures, 8), expected)

@@ -746,6 +746,31 @@ class TestOutputsThatWouldLoseData:
         assert _digest(folder)["x.png"] != before["x.png"]
         assert _cli("tonemap", folder / "x.exr", folder) == 0  # its own output now: a rerun resumes
 
+    def test_a_kill_before_the_marker_does_not_make_the_output_foreign(
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        from torch_modulo.batch import run as batch_run
+
+        folder = tmp_path / "shots"
+        folder.mkdir()
+        write_image(folder / "x.exr", _scene(1))
+
+        def no_marker(*args: Any, **kwargs: Any) -> None:
+            raise OSError(28, "No space left on device")
+
+        with monkeypatch.context() as patch:  # the output is written, its done marker is not
+            patch.setattr(batch_run, "write_marker", no_marker)
+            assert _cli("tonemap", folder / "x.exr", folder) == 1
+        assert (folder / "x.png").is_file()
+        assert _cli("tonemap", folder / "x.exr", folder) == 0  # "the next run redoes this input", as promised
+        assert _names(_report(folder, "tonemap")["done"]) == ["x.exr"]
+
+    def test_a_link_to_itself_fails_alone(self, scenes: Path, tmp_path: Path) -> None:
+        (scenes / "loop.exr").symlink_to(scenes / "loop.exr")
+        assert _cli("tonemap", scenes, tmp_path / "png") == 1
+        report = _report(tmp_path / "png", "tonemap")
+        assert len(report["done"]) == 3 and _names(report["failed"]) == ["loop.exr"]
+
     def test_a_broken_link_is_an_input_that_fails(self, scenes: Path, tmp_path: Path) -> None:
         (scenes / "gone.exr").symlink_to(tmp_path / "nowhere.exr")
         assert _cli("tonemap", scenes, tmp_path / "png") == 1

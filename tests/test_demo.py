@@ -123,7 +123,7 @@ def test_options_that_cannot_work_are_refused_before_any_work(tmp_path: Path, ca
         main(["demo", "--out", str(tmp_path / "out"), "--bits", "25"])
     assert stop.value.code == 2 and "expected a bit depth from 1 to 24; got 25" in capsys.readouterr().err
     lines: list[str] = []
-    with pytest.raises(ValueError, match=r"ratio must be more than 1 and at most 2\*\*bits - 1 = 255 \(bits=8\)"):
+    with pytest.raises(ValueError, match=r"ratio must be more than 1 and at most 2\*\*bits = 256 \(bits=8\)"):
         run_demo(tmp_path / "out", ratio=1000.0, log=lines.append)
     assert lines == [] and not (tmp_path / "out").exists()
 
@@ -134,4 +134,7 @@ def test_a_scene_among_the_demos_own_outputs_is_refused(tmp_path: Path) -> None:
     before = (out / "multi_shot.exr").read_bytes()
     with pytest.raises(ValueError, match="is one of the files the demo writes in"):
         run_demo(out, out / "multi_shot.exr", method="guided", workers=1, log=lambda _: None)
+    (tmp_path / "link.exr").symlink_to(out / "multi_shot.exr")  # through a link too
+    with pytest.raises(ValueError, match="is one of the files the demo writes in"):
+        run_demo(out, tmp_path / "link.exr", method="guided", workers=1, log=lambda _: None)
     assert (out / "multi_shot.exr").read_bytes() == before

@@ -245,7 +245,11 @@ def test_load_scene_max_side_zero_is_refused(tmp_path) -> None:
 
 
 def test_protocol_b_checks_and_warns() -> None:
-    for bad, message in ((dict(peak=float("nan")), "peak must be finite"), (dict(period=0), "period must be")):
+    for bad, message in (
+        (dict(peak=float("nan")), "peak must be finite"),
+        (dict(period=0), "period must be"),
+        (dict(peak=255.5), r"period must be at most floor\(peak\)"),  # nothing could roll over
+    ):
         with pytest.raises(ValueError, match=message):
             protocols.protocol_b(torch.rand(3, 4, 4), **bad)
     scene = torch.zeros(3, 10, 10)

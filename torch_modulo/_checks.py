@@ -430,11 +430,15 @@ def exposure_tensor(
         return exposure_tensor(array, like, name)
     elif isinstance(exposure, Sequence) and not isinstance(exposure, str):
         try:  # nested sequences too: (B, M) exposures as a list of lists
-            tau = torch.tensor(exposure, dtype=torch.float64).to(device=like.device, dtype=like.dtype)
+            values = torch.tensor(exposure, dtype=torch.float64)
         except (TypeError, ValueError, RuntimeError):
-            raise TypeError(
-                f"{name} must be a sequence of numbers (or of equal-length sequences of numbers); got {exposure!r}"
-            ) from None
+            try:  # anything float() takes: Fraction, Decimal, one-element arrays and tensors
+                values = torch.tensor([float(v) for v in exposure], dtype=torch.float64)
+            except (TypeError, ValueError, RuntimeError):
+                raise TypeError(
+                    f"{name} must be a sequence of numbers (or of equal-length sequences of numbers); got {exposure!r}"
+                ) from None
+        tau = values.to(device=like.device, dtype=like.dtype)
     else:
         raise TypeError(f"{name} must be a positive number, a sequence of numbers or a tensor; got {exposure!r}")
     if _VALIDATION and tau.numel():

@@ -485,7 +485,11 @@ def capture_stack(
     x = radiance.unsqueeze(0) if unbatched else radiance
     tau = _stack_exposures(exposure_tensor(exposures, radiance, "exposures"), x.shape[0], unbatched)
     if validation_enabled():
-        _warn_inexact_counts(nonnegative_max(radiance, "radiance"), tau, radiance.dtype, stacklevel=3)
+        peak, scale = nonnegative_max(radiance, "radiance"), tau
+        if tau.shape[0] > 1 and x.numel():  # a row of exposures per item: each item's peak times its own exposures
+            top = x.detach().flatten(1).amax(1).double() * tau.detach().flatten(1).amax(1).double()
+            peak, scale = float(top.max()), tau.new_ones(())
+        _warn_inexact_counts(peak, scale, radiance.dtype, stacklevel=3)
     period = float(2**bits)
     y = x.unsqueeze(1)
     if _needs_grad(radiance, tau):

@@ -284,7 +284,7 @@ def _add_demo(commands: Any) -> None:
         "--ratio",
         type=_ratio,
         default=64.0,
-        help="multi-shot neighbouring exposure ratio, at most 2**bits - 1 (default: %(default)s)",
+        help="multi-shot neighbouring exposure ratio, at most 2**bits (default: %(default)s)",
     )
     demo.add_argument(
         "--workers",

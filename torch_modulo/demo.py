@@ -223,7 +223,7 @@ def run_demo(
             :func:`~torch_modulo.pipeline.load_radiance` as RGB (grey repeated); NaN and infinite values are
             replaced, negative values clamped to 0.
         bits: the simulated sensors' bit depth.
-        ratio: neighbouring exposure ratio of the multi-shot captures (at most ``2**bits - 1``).
+        ratio: neighbouring exposure ratio of the multi-shot captures (at most ``2**bits``).
         workers: worker processes for the single-shot unwrapping (default: one per core when it pays).
         method: the :func:`~torch_modulo.unwrap_single` method (``"learned"``, ``"guided"``, ``"fast"`` or ``"paper"``).
         log: where progress lines go.
@@ -232,16 +232,14 @@ def run_demo(
         A dict of the error figures, timings and written paths.
 
     Raises:
-        ValueError: ``ratio`` outside ``(1, 2**bits - 1]``, a black scene, or a scene that is one of the radiance
+        ValueError: ``ratio`` outside ``(1, 2**bits]``, a black scene, or a scene that is one of the radiance
             files the demo writes in ``out_dir`` (it would be replaced).
     """
-    if not 1 < ratio <= 2**bits - 1:  # checked before any work: the multi-shot stage comes last
-        raise ValueError(
-            f"ratio must be more than 1 and at most 2**bits - 1 = {2**bits - 1} (bits={bits}); got {ratio}"
-        )
+    if not 1 < ratio <= 2**bits:  # checked before any work: the multi-shot stage comes last
+        raise ValueError(f"ratio must be more than 1 and at most 2**bits = {2**bits} (bits={bits}); got {ratio}")
     out = Path(out_dir)
     path = Path(scene) if scene is not None else default_scene_path()
-    if path.name in RADIANCE_OUTPUTS and path.resolve().parent == out.resolve():
+    if path.resolve().name in RADIANCE_OUTPUTS and path.resolve().parent == out.resolve():  # links too
         raise ValueError(f"the scene {path} is one of the files the demo writes in {out}: choose another output folder")
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}

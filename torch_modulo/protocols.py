@@ -253,8 +253,8 @@ def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, pe
         raise ValueError(f"share must be in (0, 1); got {share}")
     peak = check_real(peak, "peak", positive=True)
     period = check_real(period, "period", positive=True)
-    if not period <= peak:
-        raise ValueError(f"period must be at most peak; got period={period}, peak={peak}")
+    if not period <= math.floor(peak):  # the counts are floor(x e peak): below the period, nothing can roll over
+        raise ValueError(f"period must be at most floor(peak); got period={period}, peak={peak}")
     lo, hi = float(image.min()), float(image.max())
     x = (image - lo) / (hi - lo) if hi > lo else torch.zeros_like(image)
 

@@ -72,6 +72,11 @@ class TestWorkerDeath:
         assert _names(report.failed) == ["f00.txt", "f05.txt", "f06.txt", "f09.txt"]
         assert len(report.done) == 8 and report.exit_code == 1
 
+    def test_the_first_inputs_killing_their_workers_do_not_stop_the_batch(self, tmp_path: Path) -> None:
+        texts = {f"f{i:02d}.txt": f"text {i}" + (" kill" if i in (0, 1) else "") for i in range(6)}
+        report = _run(_make_inputs(tmp_path, texts), tmp_path, job=killing_job, workers=2)
+        assert _names(report.failed) == ["f00.txt", "f01.txt"] and len(report.done) == 4
+
     def test_a_pool_whose_workers_cannot_start_is_still_an_error(
         self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     ) -> None:

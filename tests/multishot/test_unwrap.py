@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -223,3 +224,13 @@ def test_counts_beyond_the_dtype_warn() -> None:
         tm.unwrap_multi(moduli, taus, bits=8)  # radiance: the counts are still beyond
     exact = tm.unwrap_multi(moduli.double(), taus, bits=8, return_counts=True)  # no warning in float64
     assert exact.flatten().tolist() == [2500.0, 27500.0, 705000.0]
+
+
+def test_the_inexact_counts_warning_weighs_each_item_by_its_own_exposures() -> None:
+    radiance = torch.stack([torch.full((1, 2, 2), 255.0), torch.full((1, 2, 2), 25500.0)])  # float32
+    taus = torch.tensor([[1.0, 256.0, 65536.0], [0.01, 0.02, 0.04]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # 255 x 65536 and 25500 x 0.04 counts: both exact in float32
+        moduli = tm.capture_stack(radiance, taus, bits=8)
+        counts = tm.unwrap_multi(moduli, taus, bits=8, return_counts=True)
+    assert counts[0].flatten().tolist() == [255.0 * 65536] * 4 and counts[1].flatten().tolist() == [1020.0] * 4

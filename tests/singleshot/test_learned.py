@@ -103,6 +103,8 @@ class TestLoader:
                 SingleShotUnwrap(method="learned", weights=str(path))  # at construction, not at the first image
             with pytest.raises(ValueError, match="is not a weights file"):
                 load_model(path)
+        with pytest.raises(FileNotFoundError, match="weights file not found"):
+            load_model(tmp_path / "missing.pt")
 
     def test_bad_options(self) -> None:
         m = torch.zeros(8, 8)

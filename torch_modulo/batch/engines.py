@@ -283,8 +283,6 @@ def run_pool(
     queue.reverse()
     running: dict[Future[dict[str, Any]], Task] = {}
     alone: list[Task] = []  # in flight when a worker died: run again one at a time (on top of the queue)
-    came_back = False  # a task came back from a worker (since the start, or since workers died with no task)
-    killers = 0  # tasks that then killed their worker when they ran alone
     executor: ProcessPoolExecutor | None = None
     try:
         executor = _new_pool(workers, threads, preload)
@@ -316,22 +314,14 @@ def run_pool(
                     continue
                 except Exception as error:  # the result could not come back
                     result = {"ok": False, "seconds": 0.0, "error": f"{type(error).__name__}: {error}"}
-                came_back = True
                 if task in alone:
                     alone.remove(task)
                 on_result(task, result)
             if broken and not stop.requested:  # (after a stop, the tasks lost are not finished, as after any stop)
-                if not lost:  # the workers died with no task in flight: they cannot start, unless they did before
-                    if not came_back:
-                        raise BrokenProcessPool("the worker processes die as they start")
-                    came_back, killers = False, 0
-                elif lost[0] in alone:  # it ran alone: it is the one that kills its worker
-                    if killers and not came_back:  # a second one, and no task came back: no worker can start
-                        raise BrokenProcessPool("the worker processes die as they start")
-                    killers += 1
+                if lost and lost[0] in alone:  # it ran alone: it is the one that kills its worker
                     alone.remove(lost[0])
                     on_result(lost[0], {"ok": False, "seconds": 0.0, "error": _WORKER_DIED})
-                else:
+                elif lost:
                     stop.log(
                         f"a worker process died (killed, or out of memory): the {len(lost)} task(s) in flight run "
                         "again, one at a time"
@@ -340,6 +330,9 @@ def run_pool(
                     queue.extend(reversed(lost))
                 executor.shutdown(wait=True)
                 executor = _new_pool(workers, threads, preload)
+                # A pool whose workers die as they start fails this no-op (BrokenProcessPool): a real error, raised
+                # below, not an input to blame.
+                executor.submit(os.getpid).result()
     except _START_ERRORS:
         if not stop.requested:  # a pool that cannot start without being asked to stop: a real error
             raise

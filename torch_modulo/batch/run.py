@@ -94,7 +94,11 @@ def _problem(
     root = run.source_root
     if root is not None and (inside(target, root) if root.is_dir() else target == root):
         return f"output {target} would be written inside the input {root}; inputs are never written"
-    if target == Path(task.source).resolve():
+    try:
+        own = Path(task.source).resolve()
+    except (OSError, RuntimeError):  # a link that points to itself: its job fails, naming it
+        own = Path(os.path.abspath(task.source))
+    if target == own:
         return f"output {target} would replace its own input"
     if claimed[str(target)] != task.name:
         return f"output {_relative(target, run.out)} is also the output of {claimed[str(target)]}; rename one input"
@@ -118,10 +122,14 @@ def _beside_its_input(run: _Run) -> bool:
 
 def _foreign(run: _Run, task: Task, outs: Sequence[Path]) -> str | None:
     """In the input's own folder, an output that exists but that no run of this command wrote (no done marker)
-    is the user's file: why it may not be replaced, or None."""
-    if marker_path(run.out, run.command, task.name).is_file():
+    is the user's file: why it may not be replaced, or None (also when the files cannot be looked at: a name too
+    long; the job then fails with the system's reason)."""
+    try:
+        if marker_path(run.out, run.command, task.name).is_file():
+            return None
+        there = next((p for p in outs if p.exists()), None)
+    except OSError:
         return None
-    there = next((p for p in outs if p.exists()), None)
     if there is None:
         return None
     return (
@@ -216,6 +224,10 @@ def _plan(
             report.skipped.append({"input": task.name, "outputs": rel, "reason": reason})
         else:
             run.todo.append(task)
+    if _beside_its_input(run):  # a marker before the job: after a kill, its outputs are still this command's
+        for task in run.todo:
+            with contextlib.suppress(OSError):
+                write_json(marker_path(run.out, run.command, task.name), {"command": run.command, "pending": True})
     # The input's state as the job will see it: a change during the job makes the next run redo it.
     for task in run.todo:
         with contextlib.suppress(OSError):  # a missing input fails in the job, with the job's message

@@ -34,9 +34,10 @@ def _warn_inexact_counts(out: torch.Tensor, tau: torch.Tensor, counts: bool) -> 
     limit = MAX_BITS.get(out.dtype, 53)
     if limit >= 53:
         return
-    top = float(out.max())  # inf where the dtype overflowed
+    top = out.amax(dim=1).double()  # per item; inf where the dtype overflowed
     if not counts:
-        top *= float(tau[:, -1].max())  # radiance times the longest exposure: the counts, at most
+        top = top * tau[:, -1].double()  # radiance times the item's longest exposure: its counts, at most
+    top = float(top.max())
     if top > 2**limit:
         warnings.warn(
             f"counts reach {top:.0f}, beyond what {out.dtype} holds exactly ({2**limit}): they are rounded (or "

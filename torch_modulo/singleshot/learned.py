@@ -225,6 +225,7 @@ def load_model(path: str | Path | None = None, device: torch.device | str = "cpu
         device: where to put the network.
 
     Raises:
+        FileNotFoundError: there is no file at ``path``.
         ValueError: the file is not a weights file of the training recipe (the message names it).
 
     Example:
@@ -233,6 +234,8 @@ def load_model(path: str | Path | None = None, device: torch.device | str = "cpu
     """
     if path is None:
         path = resources.files("torch_modulo.singleshot").joinpath("weights", WEIGHTS)
+    elif not Path(path).is_file():
+        raise FileNotFoundError(2, "weights file not found", str(path))
     return _load_cached(str(path), str(torch.device(device)))
 
 
