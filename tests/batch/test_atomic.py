@@ -147,3 +147,16 @@ class TestStaleTemporaries:
         removed = remove_stale_temporaries([tmp_path / "a.png", tmp_path / "missing" / "c.png"])
         assert [p.name for p in removed] == sorted([f".a.png.old-{dead}-ab", f".a.{dead}-ab.tmp.png"])
         assert sorted(p.name for p in tmp_path.iterdir()) == [f".b.{dead}-ab.tmp.png"]
+
+
+def test_a_folder_swapped_through_a_link_is_restored_beside_its_target(tmp_path: Path) -> None:
+    elsewhere, out = tmp_path / "elsewhere", tmp_path / "out"
+    old = elsewhere / ".scene.old-999999999-0f3c9a1b"  # a writer (no such process) killed between the renames
+    old.mkdir(parents=True)
+    (old / "notes.txt").write_text("the user's")
+    (elsewhere / ".scene.tmp-999999999-0f3c9a1b").mkdir()
+    out.mkdir()
+    (out / "scene").symlink_to(elsewhere / "scene")  # dangling until the old folder is back
+    removed = remove_stale_temporaries([out / "scene"])
+    assert [p.name for p in removed] == [".scene.tmp-999999999-0f3c9a1b"]
+    assert (out / "scene" / "notes.txt").read_text() == "the user's"

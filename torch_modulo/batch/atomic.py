@@ -233,6 +233,9 @@ def remove_stale_temporaries(finals: Iterable[str | os.PathLike[str]]) -> list[P
     for final in finals:
         final = Path(final)
         wanted.setdefault(final.parent, set()).add(final.name)
+        if os.path.islink(final):  # a folder swapped through a link is swapped beside its target
+            target = Path(os.path.realpath(final))
+            wanted.setdefault(target.parent, set()).add(target.name)
     removed: list[Path] = []
     for folder, names in wanted.items():
         try:
