@@ -231,6 +231,7 @@ def train(args: argparse.Namespace) -> None:
 def evaluate(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     net, head = load(args.weights)
+    jumps = load_model() if args.shipped_jumps else net  # the pairs' network: the fine-tuned one, or the shipped one
     folder = args.data or protocols.DEV_SCENES
     scenes = protocols.list_scenes(folder, split=args.split if args.data is None else "all")
     for proto in args.protocols:
@@ -240,7 +241,7 @@ def evaluate(args: argparse.Namespace) -> None:
             moduli = torch.remainder(truth, PERIOD).to(torch.int64)
             planes = moduli.numpy()
             with torch.no_grad():
-                logp = predict_edges(net, moduli, BITS).numpy()
+                logp = predict_edges(jumps, moduli, BITS).numpy()
             u = level_costs(net, head, moduli)
             tree = np.stack([decode_edges(planes[c], logp[c], BITS)[0] for c in range(planes.shape[0])])
             variants = [tree] + [
@@ -279,6 +280,9 @@ def main(argv: list[str] | None = None) -> None:
     e.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))
     e.add_argument("--lams", nargs="+", type=float, default=[1.0])
     e.add_argument("--threads", type=int, default=2)
+    e.add_argument(
+        "--shipped-jumps", action="store_true", help="the tree and the pairs from the shipped network; the head's own"
+    )
     args = ap.parse_args(argv)
     (train if args.command == "train" else evaluate)(args)
 
