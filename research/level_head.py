@@ -20,6 +20,7 @@ frozen network (``--frozen``)::
     python -m research.level_head train --init /tmp/head.pt --steps 5000 --out research/weights/level_head.pt
     python -m research.level_head eval --weights research/weights/level_head.pt --split train --lams 0.3 1 3
     python -m research.level_head eval --weights research/weights/level_head.pt --data <selection set>
+    python -m research.level_head eval --shipped-jumps --split validation   # the shipped tree, the head's levels
 
 Reported per protocol: mean exact-k / rolled-over right (%) of the tree and of the region moves at each ``lam``,
 scored per plane after aligning its global offset (``protocols.score_scene``), and the head's own accuracy.
