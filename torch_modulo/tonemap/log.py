@@ -133,17 +133,23 @@ def tonemap_log(
         return restore(x.clone(), shape)
     s = 2.0**exposure
     qs, ks = q * s, k * s
-    if x.shape[0] > 1 and x.dtype != torch.float64 and not torch.compiler.is_compiling():
-        tops = x.detach().amax(dim=(1, 2, 3)).tolist()  # bound each image's luminance: its weights sum to 1
-        if not all(_fits(x.dtype, qs, t) and _fits(x.dtype, ks, t) for t in tops):
-            # An image that needs float64 would move the whole batch there: map one image at a time, so a batch
-            # gives the same result as its images alone.
-            parts = [tonemap_log(x[i : i + 1], q, k, exposure, srgb=srgb) for i in range(x.shape[0])]
-            return restore(torch.cat(parts), shape)
+
+    def fitting(tops: torch.Tensor) -> list[bool]:
+        """Per image, whether its largest luminance (or a bound of it) scaled stays in ``x``'s dtype."""
+        return [_fits(x.dtype, qs, t) and _fits(x.dtype, ks, t) for t in tops.tolist()]
+
+    def one_by_one() -> torch.Tensor:
+        # Some images need float64 and others not: map them one at a time, so that a batch gives the same result
+        # as its images alone (one image would otherwise move the whole batch to float64).
+        parts = [tonemap_log(x[i : i + 1], q, k, exposure, srgb=srgb) for i in range(x.shape[0])]
+        return restore(torch.cat(parts), shape)
+
     if tiled(x):
         y_max, _ = luminance_stats_tiled(x, None)
-        top = float(y_max.max())
-        if _fits(x.dtype, qs, top) and _fits(x.dtype, ks, top):
+        fit = fitting(y_max)
+        if any(fit) and not all(fit):
+            return one_by_one()
+        if all(fit):
             tiny = torch.finfo(x.dtype).tiny
             denom = torch.log1p(ks * y_max)
             # Ld / Y = log1p(q s Y) / (Y log1p(k s Ymax))
@@ -160,10 +166,11 @@ def tonemap_log(
     elif torch.compiler.is_compiling():
         out = _log_map_traced(x, qs, ks)
     else:
-        top = float(x.detach().amax())  # bounds the luminance: its weights sum to 1
-        fits = _fits(x.dtype, qs, top) and _fits(x.dtype, ks, top)
+        fit = fitting(x.detach().amax(dim=(1, 2, 3)))  # bounds each image's luminance: its weights sum to 1
+        if any(fit) and not all(fit):
+            return one_by_one()
         # Where the scaled luminance leaves the input dtype's range, map in float64.
-        out = _log_map(x, qs, ks) if fits else _log_map(x.double(), qs, ks).to(x.dtype)
+        out = _log_map(x, qs, ks) if all(fit) else _log_map(x.double(), qs, ks).to(x.dtype)
     return restore(encode(out, srgb), shape)
 
 
