@@ -210,11 +210,12 @@ def _plan(
             claimed.setdefault(str(resolved), task.name)
             for folder in _folders_above(resolved, run.out):
                 holders.setdefault(str(folder), set()).add(task.name)
+    beside = _beside_its_input(run)  # once: it stats the input
     for task in mine:
         outs = [Path(p).resolve() for p in task.outputs]
         rel = [_relative(p, run.out) for p in outs]
         problem = next((why for why in (_problem(task, p, run, claimed, holders) for p in outs) if why), None)
-        if problem is None and not force and _beside_its_input(run):
+        if problem is None and not force and beside:
             problem = _foreign(run, task, outs)
         if problem:
             report.failed.append({"input": task.name, "outputs": rel, "error": f"BatchError: {problem}"})
@@ -224,7 +225,7 @@ def _plan(
             report.skipped.append({"input": task.name, "outputs": rel, "reason": reason})
         else:
             run.todo.append(task)
-    if _beside_its_input(run):  # a marker before the job: after a kill, its outputs are still this command's
+    if beside:  # a marker before the job: after a kill, its outputs are still this command's
         for task in run.todo:
             with contextlib.suppress(OSError):
                 write_json(marker_path(run.out, run.command, task.name), {"command": run.command, "pending": True})
