@@ -348,17 +348,27 @@ def _temporary_sibling(path: Path) -> Path:
     return path.with_name(f".{stem}.{os.getpid()}-{secrets.token_hex(4)}.tmp{path.suffix}")
 
 
-def _naming_final(error: OSError, tmp: Path, path: Path) -> OSError:
-    """``error`` (same type, errno and text) naming ``path`` wherever it named the temporary file ``tmp``."""
-    if error.filename != str(tmp) and str(tmp) not in str(error):
+def _naming_final(error: OSError, tmp: Path, path: Path, *, unnamed: Path | None = None) -> OSError:
+    """``error`` (same type, errno and text) naming ``path`` wherever it named the temporary file or folder ``tmp``;
+    ``error`` itself when it does not name it. With ``unnamed``, always a new error, and one that names no file (a
+    write that failed on close, a full disk) names ``unnamed``."""
+    if unnamed is None and error.filename != str(tmp) and str(tmp) not in str(error):
         return error
 
     def fix(text: object) -> object:
         return text.replace(str(tmp), str(path)) if isinstance(text, str) else text
 
     if error.errno is not None and error.strerror is not None:
-        return type(error)(error.errno, fix(error.strerror), fix(error.filename))
+        where = str(unnamed) if error.filename is None and unnamed is not None else fix(error.filename)
+        return type(error)(error.errno, fix(error.strerror), where)
     return type(error)(*(fix(arg) for arg in error.args))
+
+
+def _discard_file(tmp: Path) -> None:
+    """Remove a temporary file, if there is one; a failure here (a read-only folder) must not hide the error that
+    is being handled."""
+    with contextlib.suppress(OSError):
+        tmp.unlink(missing_ok=True)
 
 
 # ------------------------------------------------------------------------------------------------ public API
@@ -566,15 +576,13 @@ def write_image(
         _write_checked(tmp, spec, np.ascontiguousarray(array), fmt, path)
         os.replace(tmp, path)
     except OSError as error:
-        with contextlib.suppress(OSError):  # on a read-only folder this fails too; the first error is the one to see
-            tmp.unlink(missing_ok=True)
+        _discard_file(tmp)
         fixed = _naming_final(error, tmp, path)
         if fixed is error:
             raise
         raise fixed from error
     except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
+        _discard_file(tmp)
         raise
     return path
 

@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from torch_modulo.io import _discard_folder, _folder_temporaries, _swap_folder, temporary_stem
+from torch_modulo.io import _discard_file, _discard_folder, _folder_temporaries, _swap_folder, temporary_stem
 
 __all__ = [
     "atomic_output_dir",
@@ -64,13 +64,6 @@ def _naming_final(error: OSError, final: Path) -> OSError:
     return OSError(error.errno, error.strerror, str(final))
 
 
-def _discard(tmp: Path) -> None:
-    """Remove a temporary file, if there is one; a failure here (a read-only folder) must not hide the error that
-    is being handled."""
-    with contextlib.suppress(OSError):
-        tmp.unlink(missing_ok=True)
-
-
 def _write_atomic(path: Path, write: Callable[[Path], object]) -> Path:
     """``write(temporary)`` beside ``path``, then rename it to ``path``; on failure nothing is left, and an
     ``OSError`` names ``path``."""
@@ -80,10 +73,10 @@ def _write_atomic(path: Path, write: Callable[[Path], object]) -> Path:
         write(tmp)
         os.replace(tmp, path)
     except OSError as error:
-        _discard(tmp)
+        _discard_file(tmp)
         raise _naming_final(error, path) from error
     except BaseException:
-        _discard(tmp)
+        _discard_file(tmp)
         raise
     return path
 

@@ -20,7 +20,7 @@ import shutil
 from collections.abc import Callable, Collection
 from pathlib import Path
 
-from torch_modulo.io import _discard_folder, _folder_temporaries, _swap_folder
+from torch_modulo.io import _discard_folder, _folder_temporaries, _naming_final, _swap_folder
 
 __all__ = ["replace_folder"]
 
@@ -67,7 +67,7 @@ def replace_folder(final: Path, build: Callable[[Path], None], replaced: Collect
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()
     except OSError as error:
-        raise _naming_final(error, tmp, final) from error
+        raise _naming_final(error, tmp, final, unnamed=final) from error
     try:
         build(tmp)
         if not final.exists():
@@ -80,24 +80,11 @@ def replace_folder(final: Path, build: Callable[[Path], None], replaced: Collect
             os.chdir(final)  # the process stood in the old folder, which is about to be deleted
     except OSError as error:
         _discard_folder(tmp, old, final)
-        raise _naming_final(error, tmp, final) from error
+        raise _naming_final(error, tmp, final, unnamed=final) from error
     except BaseException:
         _discard_folder(tmp, old, final)
         raise
     shutil.rmtree(old, ignore_errors=True)
-
-
-def _naming_final(error: OSError, tmp: Path, final: Path) -> OSError:
-    """The same error (type, errno and text) with the temporary folder's name replaced by the final one; an error
-    that names no file (a write that failed on close, a full disk) names the final folder."""
-
-    def fix(text: object) -> object:
-        return text.replace(str(tmp), str(final)) if isinstance(text, str) else text
-
-    if error.errno is not None and error.strerror is not None:
-        where = str(final) if error.filename is None else fix(error.filename)
-        return type(error)(error.errno, fix(error.strerror), where)
-    return type(error)(*(fix(arg) for arg in error.args))
 
 
 def _cwd() -> Path | None:
