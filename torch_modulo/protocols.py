@@ -267,9 +267,10 @@ def protocol_b(image: torch.Tensor, share: float = 0.2, peak: float = 4095.0, pe
     e_lo, e_hi = 1e-6, 1.0
     while rolled(e_hi) < share and e_hi < 2.0**40:
         e_lo, e_hi = e_hi, e_hi * 2
-    if rolled(e_hi) < share:  # too few distinct bright values: every lit pixel is saturated, and still short
+    reached = rolled(e_hi)
+    if reached < share:  # too few distinct bright values: every lit pixel is saturated, and still short
         warnings.warn(
-            f"at most {rolled(e_hi):.3f} of the pixels can roll over (protocol B asks for {share}): the counts are "
+            f"at most {reached:.3f} of the pixels can roll over (protocol B asks for {share}): the counts are "
             "those of the largest exposure tried, every pixel above the minimum saturated",
             UserWarning,
             stacklevel=2,
