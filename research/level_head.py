@@ -1,4 +1,5 @@
-"""A per-pixel level head trained with the edge-jump network, and region moves that use it (not shipped yet).
+"""A per-pixel level head trained with the edge-jump network, and region moves that use it: the prototype and the
+training of ``torch_modulo/singleshot/levels.py`` (shipped as ``weights/levels.pt``, the file this writes).
 
 The learned tree fails mostly by whole regions a period off (``research.learned_regions``). A small head on the
 network's full- and half-resolution features predicts, per pixel and channel, a distribution over the rollover
@@ -18,8 +19,8 @@ frozen network (``--frozen``)::
 
     python -m research.level_head train --frozen --steps 4000 --lr 2e-3 --out /tmp/head.pt     # ~15 min, 2 cores
     python -m research.level_head train --init /tmp/head.pt --steps 5000 --out research/weights/level_head.pt
-    python -m research.level_head eval --weights research/weights/level_head.pt --split train --lams 0.3 1 3
-    python -m research.level_head eval --weights research/weights/level_head.pt --data <selection set>
+    python -m research.level_head eval --split train --lams 0.3 1 3     # default: the shipped levels.pt
+    python -m research.level_head eval --data <selection set>
     python -m research.level_head eval --shipped-jumps --split validation   # the shipped tree, the head's levels
 
 Reported per protocol: mean exact-k / rolled-over right (%) of the tree and of the region moves at each ``lam``,
@@ -38,7 +39,6 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from research.learned_regions import confident_regions
 from torch_modulo import protocols
@@ -51,37 +51,12 @@ from torch_modulo.singleshot.learned import (
     load_model,
     predict_edges,
 )
+from torch_modulo.singleshot.levels import LEVELS, LevelHead
 
 BITS = 8
 PERIOD = 1 << BITS
-LEVELS = 16  # k = 0 .. 15 (the training labels are clipped at 15)
 SHIFTS = (-2, -1, 1, 2)
 ROOT = Path(__file__).resolve().parents[1]
-
-
-class LevelHead(nn.Module):
-    """Four convolutions (3 x 3, dilations 1, 2, 4; then 1 x 1) from the network's features to level logits.
-
-    Input: (B, width + 2 width + 15, H, W): the full-resolution features, the half-resolution decoder's upsampled,
-    and the network's input. Output: (B, 3, LEVELS, H, W) logits per channel slot.
-    """
-
-    def __init__(self, cin: int = 16 + 32 + 15, width: int = 32, levels: int = LEVELS) -> None:
-        super().__init__()
-        self.levels = levels
-        self.net = nn.Sequential(
-            nn.Conv2d(cin, width, 3, padding=1),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(width, width, 3, padding=2, dilation=2),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(width, width, 3, padding=4, dilation=4),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(width, 3 * levels, 1),
-        )
-
-    def forward(self, features: torch.Tensor) -> torch.Tensor:
-        b, _, h, w = features.shape
-        return self.net(features).view(b, 3, self.levels, h, w)
 
 
 def trunk_and_head_input(net: EdgeJumpNet, wrapped: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -212,7 +187,10 @@ def train(args: argparse.Namespace) -> None:
         levels = torch.floor(counts / PERIOD).long().clamp_(0, LEVELS - 1)
         level_logits = head(head_input).permute(0, 1, 3, 4, 2).reshape(-1, LEVELS)
         level_loss = F.cross_entropy(level_logits, levels.reshape(-1))
-        loss = level_loss if args.frozen else edge_loss(net.logits(features), target, 2.0) + args.beta * level_loss
+        if args.frozen or args.edge_weight == 0:
+            loss = level_loss
+        else:
+            loss = args.edge_weight * edge_loss(net.logits(features), target, 2.0) + args.beta * level_loss
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -272,10 +250,11 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--seed", type=int, default=31)
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--out", type=Path, default=ROOT / "research" / "weights" / "level_head.pt")
+    t.add_argument("--edge-weight", type=float, default=1.0, help="the edge loss's weight (0: levels alone)")
     t.add_argument("--frozen", action="store_true", help="train the head alone on the shipped network's features")
     t.add_argument("--init", type=Path, default=None, help="start from a file this command wrote")
     e = sub.add_parser("eval", help="tree vs region moves on the scenes")
-    e.add_argument("--weights", type=Path, default=ROOT / "research" / "weights" / "level_head.pt")
+    e.add_argument("--weights", type=Path, default=ROOT / "torch_modulo" / "singleshot" / "weights" / "levels.pt")
     e.add_argument("--split", default="train", choices=protocols.SPLITS)
     e.add_argument("--data", type=Path, default=None, help="another scenes folder (all its scenes)")
     e.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))

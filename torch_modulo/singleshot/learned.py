@@ -46,6 +46,7 @@ __all__ = [
     "TREE_PIXELS",
     "WEIGHTS",
     "EdgeJumpNet",
+    "check_levels",
     "check_weights",
     "decode_edges",
     "decode_jumps",
@@ -660,13 +661,17 @@ def learned_k(
     max_cuts: int = 0,
     augment: bool = False,
     tile: int = TILE,
+    levels: Any = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``k`` and the confidence of one image's channels (C, H, W), up to one constant per channel.
 
     The network runs on its own device (the moduli are moved there), tile by tile; the decoding on the CPU. With
-    ``max_cuts``, the costs of the jumps within :data:`BAND` of each pair's most likely one are kept for
-    :func:`refine_band` (``2 (2 BAND + 1)`` floats per pixel and channel) and the confidence is that of the tree
-    before the cuts.
+    ``max_cuts``, min-cut moves (:func:`refine_band`) follow the tree. With ``levels`` (a
+    :class:`~torch_modulo.singleshot.levels.LevelNet`, or ``True`` for the shipped one), regions are then moved by
+    its level costs (:func:`~torch_modulo.singleshot.levels.region_moves`; ``LEVELS`` float16 costs per pixel and
+    channel are kept while the image is decoded). With either, the costs of the jumps within :data:`BAND` of each
+    pair's most likely one are kept (``2 (2 BAND + 1)`` floats per pixel and channel). The confidence is that of
+    the tree.
 
     Example:
         >>> ramp = np.arange(0, 1200, 40).reshape(1, 1, -1).repeat(8, axis=1)
@@ -681,14 +686,25 @@ def learned_k(
         return np.zeros(x.shape, dtype=np.int64), np.ones(x.shape)
     k = np.empty(x.shape, dtype=np.int64)
     confidence = np.empty(x.shape)
-    band = BAND if max_cuts else 0
     device = next(net.parameters()).device
+    if levels is True or levels is False:
+        from torch_modulo.singleshot.levels import load_levels
+
+        levels = load_levels(device=device) if levels else None
+    band = BAND if max_cuts or levels is not None else 0
     jump, cost = predict_jumps(net, x.to(device=device, dtype=torch.float32), bits, augment, tile, band)
+    if levels is not None:
+        from torch_modulo.singleshot.levels import predict_levels, region_moves
+
+        level_device = next(levels.parameters()).device
+        u = predict_levels(levels, x.to(device=level_device, dtype=torch.float32), bits, tile)
     for i in range(x.shape[0]):  # one channel's int64 moduli at a time
         plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
         k[i], confidence[i] = decode_jumps(plane, jump[i], cost[i, :, band] if band else cost[i], bits)
         if max_cuts:
             k[i] = refine_band(plane, k[i], cost[i], jump[i].astype(np.int64) - band, bits, max_cuts)
+        if levels is not None:  # last: the cuts weigh the pairs alone and would undo what the levels moved
+            k[i] = region_moves(plane, k[i], cost[i], jump[i].astype(np.int64) - band, u[i], bits)
     return k, confidence
 
 
@@ -769,14 +785,36 @@ def check_weights(value: object, name: str) -> str | None:
     return str(value)
 
 
-def mosaic_spec(spec: Any) -> Any:
-    """``spec`` for a mosaic's interpolated guide: ``"learned"`` runs :data:`MOSAIC_CUTS` cuts unless told otherwise.
+def check_levels(value: object, name: str) -> bool | str:
+    """The ``levels`` option: ``True`` (the shipped level weights), ``False`` (none) or the path of a level weights
+    file, as a string (the file is loaded, and cached, to check it).
 
-    The other methods, and a ``max_cuts`` the caller chose, are kept as they are.
+    Example:
+        >>> check_levels(False, "levels")
+        False
     """
-    if spec.method != "learned" or "max_cuts" in dict(spec.options):
+    if isinstance(value, (str, Path)):
+        from torch_modulo.singleshot.levels import _load_cached as load_level_file
+
+        if not Path(value).is_file():
+            raise ValueError(f"{name} must be True, False or an existing level weights file; got {str(value)!r}")
+        load_level_file(str(value), "cpu")  # a file that is not one fails here, naming it
+        return str(value)
+    try:
+        return check_flag(value, name)
+    except TypeError:
+        raise TypeError(f"{name} must be True, False or a path to a level weights file; got {value!r}") from None
+
+
+def mosaic_spec(spec: Any) -> Any:
+    """``spec`` for a mosaic's interpolated guide: ``"learned"`` runs :data:`MOSAIC_CUTS` cuts and no level moves
+    unless told otherwise (on mosaics the cuts gain and the level moves do not; docs/cfa.md).
+
+    The other methods, and the ``max_cuts`` and ``levels`` the caller chose, are kept as they are.
+    """
+    if spec.method != "learned":
         return spec
-    options = {**dict(spec.options), "max_cuts": MOSAIC_CUTS}
+    options = {"max_cuts": MOSAIC_CUTS, "levels": False, **dict(spec.options)}
     return dataclasses.replace(spec, options=tuple(sorted(options.items())))
 
 
@@ -792,11 +830,14 @@ def _check_tile(value: object, name: str) -> int:
 
 
 #: The options of ``method="learned"``: name -> (default, check). ``weights``: ``None`` (the shipped weights) or
-#: a weights file; ``max_cuts``: the most binary moves of :func:`refine_cut` after the tree (0: the tree alone);
+#: a weights file; ``levels``: move the tree's regions by learned level costs
+#: (:mod:`~torch_modulo.singleshot.levels`; ``True``: the shipped level weights, a path: a level weights file,
+#: ``False``: the tree alone); ``max_cuts``: the most binary moves of :func:`refine_cut` after the tree (0: none);
 #: ``augment``: average the network's output over the four flips of the image (:func:`predict_edges`); ``tile``:
 #: the side of the tiles the network predicts at once (:data:`TILE`; 0: the whole image).
 LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
     "weights": (None, check_weights),
+    "levels": (True, check_levels),
     "max_cuts": (0, _check_cuts),
     "augment": (False, check_flag),
     "tile": (TILE, _check_tile),
@@ -809,7 +850,12 @@ def _learned_ks(moduli: np.ndarray | torch.Tensor, spec: Any) -> tuple[np.ndarra
     device = moduli.device if isinstance(moduli, torch.Tensor) else torch.device("cpu")
     net = load_model(spec.option("weights"), device=device)
     options = (int(spec.option("max_cuts")), spec.option("augment"), int(spec.option("tile")))
-    return learned_k(moduli, spec.params.bits, net, *options)
+    levels, level_net = spec.option("levels"), None
+    if levels is not False:
+        from torch_modulo.singleshot.levels import load_levels
+
+        level_net = load_levels(None if levels is True else levels, device=device)
+    return learned_k(moduli, spec.params.bits, net, *options, levels=level_net)
 
 
 def solve_learned(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:

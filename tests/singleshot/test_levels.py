@@ -1,0 +1,294 @@
+"""Tests for the learned levels (torch_modulo/singleshot/levels.py): loader, tiles and strips, the receptive field,
+region moves (exact, never costlier, fixing a region a period off), and the ``levels`` option of the method."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from torch_modulo.singleshot import SingleShotUnwrap, unwrap_single
+from torch_modulo.singleshot import levels as levels_module
+from torch_modulo.singleshot.learned import _MAX_COST, BAND, edge_features, learned_k, load_model
+from torch_modulo.singleshot.levels import (
+    _REACH,
+    _STRIP,
+    LEVELS,
+    LevelNet,
+    level_margin,
+    load_levels,
+    predict_levels,
+    region_moves,
+)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def tiny(seed: int = 0, levels: int = 5) -> LevelNet:
+    torch.manual_seed(seed)
+    return LevelNet({"width": 4, "max_jump": 2, "dilations": (1, 2)}, width=4, levels=levels).eval()
+
+
+def save(net: LevelNet, path) -> None:
+    """A level weights file as research/level_head.py writes one."""
+    state = net.trunk.state_dict()
+    torch.save({"config": net.trunk.config, "state": state, "head": net.head.state_dict()}, path)
+
+
+def lamp(size: int = 40) -> np.ndarray:
+    """(size, size) counts: a ramp and a lamp several periods above it."""
+    y, x = np.mgrid[0:size, 0:size].astype(np.float64)
+    img = 30 + 5 * x + 1400 * ((np.abs(y - size / 2) < size / 6) & (np.abs(x - size / 2) < size / 6))
+    return np.floor(img)
+
+
+def energy(m, k, table, first, u, weight=1.0) -> float:
+    """The cost region_moves lowers: the level costs plus the cost of every pair's jump."""
+    total = weight * float(np.take_along_axis(u, np.clip(k, 0, u.shape[0] - 1)[None], 0).sum(dtype=np.float64))
+    for d, (a, b) in enumerate(((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))):
+        wd = np.mod(m[b] - m[a] + 128, 256) - 128
+        n = (m[b] + 256 * k[b] - m[a] - 256 * k[a] - wd) // 256 - first[d][a]
+        inside = (n >= 0) & (n < table.shape[1])
+        c = np.take_along_axis(table[d][(slice(None), *a)], np.clip(n, 0, table.shape[1] - 1)[None], 0)[0]
+        total += float(np.where(inside, np.minimum(c, _MAX_COST), _MAX_COST).sum())
+    return total
+
+
+class TestLoader:
+    def test_shipped_levels_load_offline_on_cpu(self) -> None:
+        net = load_levels()
+        assert isinstance(net, LevelNet) and not net.training and net.head.levels == LEVELS
+        assert next(net.parameters()).device.type == "cpu"
+        together = sum(p.numel() for p in net.parameters()) + sum(p.numel() for p in load_model().parameters())
+        assert together <= 2_000_000
+        assert load_levels() is net  # cached
+
+    def test_a_file_that_is_not_levels_is_named(self, tmp_path) -> None:
+        text, edges = tmp_path / "notes.pt", tmp_path / "edges.pt"
+        text.write_text("not a network")
+        net = load_model()
+        torch.save({"config": net.config, "state": net.state_dict()}, edges)  # an edge network: no head
+        for path in (text, edges):
+            with pytest.raises(ValueError, match=rf"'{path}' is not a level weights file"):
+                SingleShotUnwrap(method="learned", levels=str(path))  # at construction, not at the first image
+        with pytest.raises(FileNotFoundError, match="weights file not found"):
+            load_levels(tmp_path / "missing.pt")
+
+    def test_bad_option_values(self) -> None:
+        m = torch.zeros(8, 8)
+        with pytest.raises(ValueError, match=r"levels must be True, False or an existing level weights file"):
+            unwrap_single(m, method="learned", levels="/nonexistent/levels.pt")
+        for bad in (1, "yes", None):
+            with pytest.raises((TypeError, ValueError), match="levels"):
+                unwrap_single(m, method="learned", levels=bad)
+
+    def test_a_file_of_levels(self, tmp_path) -> None:
+        path = tmp_path / "tiny.pt"
+        save(tiny(levels=5), path)
+        modulus = torch.from_numpy(lamp(24) % 256)
+        out = unwrap_single(modulus, method="learned", levels=str(path))
+        assert out.shape == modulus.shape and torch.equal(torch.remainder(out, 256), modulus)
+        assert load_levels(path).head.levels == 5
+
+
+class TestPrediction:
+    def test_margin_covers_the_receptive_field(self) -> None:
+        net = tiny()
+        reach = 0
+        for at in range(120, 120 + net.stride):  # every place on the pooling grid
+            x = torch.randn(1, 15, 240, 240)
+            y = x.clone()
+            y[..., at, at] += 10.0
+            with torch.no_grad():
+                changed = (net(x) - net(y)).abs().amax(dim=(0, 1, 2)) > 0
+            reach = max(reach, int((changed.nonzero() - at).abs().max()))
+        assert reach < level_margin(net) <= reach + 2 * net.stride + 8
+
+    @pytest.mark.parametrize("channels", [1, 3, 2])
+    def test_tiles_and_strips_equal_the_whole_network(self, channels: int) -> None:
+        net = tiny()
+        rows, cols = 2 * _STRIP + 23, 150  # not multiples of the pooling grid, more than two strips
+        moduli = torch.randint(0, 256, (channels, rows, cols), generator=torch.Generator().manual_seed(1))
+        whole = predict_levels(net, moduli, 8, tile=0)
+        assert whole.shape == (channels, 5, rows, cols) and whole.dtype == np.float16
+        planes = [moduli] if channels in (1, 3) else [moduli[i : i + 1] for i in range(channels)]
+        direct = []
+        for x in planes:
+            padded = torch.nn.functional.pad(x.float()[None].expand(1, 3, rows, cols), (0, 2, 0, 1), mode="replicate")
+            with torch.no_grad():
+                logits = net(edge_features(padded, 8))[0, : x.shape[0], :, :rows, :cols]
+            direct.append(-torch.log_softmax(logits, dim=1).numpy())
+        assert np.allclose(whole, np.concatenate(direct), atol=2e-2)
+        tiled = predict_levels(net, moduli, 8, tile=40)
+        assert np.allclose(tiled.astype(np.float32), whole.astype(np.float32), atol=2e-2)
+
+    def test_no_channels(self) -> None:
+        assert predict_levels(tiny(), torch.zeros(0, 8, 8), 8).shape == (0, 5, 8, 8)
+        k, confidence = learned_k(np.zeros((0, 8, 8)), 8, levels=True)
+        assert k.shape == confidence.shape == (0, 8, 8)
+
+    def test_costs_are_a_distribution(self) -> None:
+        costs = predict_levels(load_levels(), torch.from_numpy(lamp(32) % 256)[None], 8).astype(np.float64)
+        assert costs.shape == (1, LEVELS, 32, 32)
+        assert np.allclose(np.exp(-costs).sum(axis=1), 1.0, atol=1e-2)
+
+
+def naive_moves(m, k, table, first, u, weight: float, sure: float) -> np.ndarray:
+    """region_moves' rules, slowly: every move of every region weighed on the whole plane's cost each round."""
+    h, w = m.shape
+    labels = np.full((h, w), -1)
+    pairs = [((y, x), (y, x + 1), table[0, :, y, x].min()) for y in range(h) for x in range(w - 1)]
+    pairs += [((y, x), (y + 1, x), table[1, :, y, x].min()) for y in range(h - 1) for x in range(w)]
+    count = 0
+    for start in np.ndindex(h, w):  # regions: flood fill over the sure pairs
+        if labels[start] >= 0:
+            continue
+        labels[start], todo = count, [start]
+        while todo:
+            p = todo.pop()
+            for a, b, c in pairs:
+                if c <= sure and p in (a, b) and labels[b if p == a else a] < 0:
+                    labels[b if p == a else a] = count
+                    todo.append(b if p == a else a)
+        count += 1
+    k = k + min(range(-LEVELS, LEVELS + 1), key=lambda g: (energy(m, k + g, table, first, u, 1.0), abs(g)))
+    neighbours = [set() for _ in range(count)]
+    for a, b, _ in pairs:
+        if labels[a] != labels[b]:
+            neighbours[labels[a]].add(labels[b])
+            neighbours[labels[b]].add(labels[a])
+    moved = np.zeros(count, dtype=int)
+    for _ in range(60):
+        now = energy(m, k + moved[labels], table, first, u, weight)
+        best, choice = np.full(count, np.inf), np.zeros(count, dtype=int)
+        for r in range(count):
+            for s in (-2, -1, 1, 2):  # region_moves' order: the first of equal drops wins
+                if abs(moved[r] + s) <= _REACH:
+                    trial = moved.copy()
+                    trial[r] += s
+                    drop = energy(m, k + trial[labels], table, first, u, weight) - now
+                    if drop < best[r]:
+                        best[r], choice[r] = drop, s
+        move = [r for r in range(count) if best[r] < -1e-6 and all(best[r] < best[q] for q in neighbours[r])]
+        if not move:
+            break
+        moved[move] += choice[move]
+    return k + moved[labels]
+
+
+class TestRegionMoves:
+    @pytest.mark.parametrize("seed", range(6))
+    def test_the_rules_done_slowly(self, seed: int) -> None:
+        # planes of many small regions that really move: the fast bookkeeping must give what the rules say
+        rng = np.random.default_rng(seed)
+        m = rng.integers(0, 256, (9, 11))
+        k0 = rng.integers(0, 2, m.shape)
+        table = rng.exponential(1.0, (2, 2 * BAND + 1, *m.shape))
+        first = rng.integers(-3, 0, (2, *m.shape))
+        u = (3 * rng.random((LEVELS, *m.shape))).astype(np.float16)
+        expected = naive_moves(m, k0, table, first, u, 0.5, 0.2)
+        assert not np.array_equal(expected - expected.min(), k0 - k0.min())  # something moved
+        assert np.array_equal(region_moves(m, k0, table, first, u, 8, weight=0.5, sure=0.2), expected)
+
+    def test_a_region_a_period_off_moves_back(self) -> None:
+        truth = lamp(40)
+        m = (truth % 256).astype(np.int64)
+        true_k = (truth // 256).astype(np.int64)
+        wrong = true_k.copy()
+        wrong[true_k > 0] -= 1  # the lamp one period low, as a tree crossing its border by one bad pair would put it
+        # every pair's table is centred on its true jump: sure of it inside the lamp and the floor, unsure (every
+        # jump of the table equally likely) across the lamp's border and its wraps
+        first, table = np.zeros((2, 40, 40), dtype=np.int64), np.full((2, 2 * BAND + 1, 40, 40), 5.0)
+        for d, (a, b) in enumerate(((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]))):
+            first[d][a] = true_k[b] - true_k[a] - (np.mod(m[b] - m[a] + 128, 256) - 128 - (m[b] - m[a])) // 256 - BAND
+            table[d, BAND][a] = np.where(true_k[a] == true_k[b], 0.0, 2.0)
+            table[d][(slice(None), *a)][:, true_k[a] != true_k[b]] = 2.0
+        u = np.full((LEVELS, 40, 40), 4.0, dtype=np.float16)
+        np.put_along_axis(u, true_k[None], 0.5, axis=0)  # the head leans to the true level
+        assert np.array_equal(region_moves(m, wrong, table, first, u, 8), true_k)
+        # with no view on levels (flat costs) nothing moves: every border jump in the tables costs the same
+        assert np.array_equal(region_moves(m, wrong, table, first, np.ones_like(u), 8), wrong)
+
+    def test_pieces_give_the_whole(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        rng = np.random.default_rng(7)
+        m = rng.integers(0, 256, (20, 23))
+        k0 = rng.integers(0, 3, m.shape)
+        table = rng.exponential(1.0, (2, 5, *m.shape))
+        first = rng.integers(-3, 0, (2, *m.shape))
+        u = (3 * rng.random((LEVELS, *m.shape))).astype(np.float16)
+        whole = region_moves(m, k0, table, first, u, 8, sure=0.2)
+        monkeypatch.setattr(levels_module, "_CHUNK", 7)  # pieces of 7 pairs in every round
+        assert np.array_equal(region_moves(m, k0, table, first, u, 8, sure=0.2), whole)
+
+    @pytest.mark.parametrize("seed", range(4))
+    def test_exact_and_never_costlier(self, seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        m = rng.integers(0, 256, (20, 23))
+        k0 = rng.integers(0, 4, m.shape)
+        table = rng.exponential(1.0, (2, 5, *m.shape))
+        first = rng.integers(-3, 1, (2, *m.shape))
+        u = rng.exponential(2.0, (LEVELS, *m.shape)).astype(np.float16)
+        k = region_moves(m, k0, table, first, u, 8, weight=0.7, sure=0.2)
+        assert k.dtype == np.int64 and k.shape == m.shape
+        assert energy(m, k, table, first, u, 0.7) < energy(m, k0, table, first, u, 0.7) - 1.0  # it did move
+        # a constant per region of pairs at most `sure` costly
+        joined_x = table[0].min(axis=0)[:, :-1] <= 0.2
+        assert np.all((k - k0)[:, :-1][joined_x] == (k - k0)[:, 1:][joined_x])
+
+    def test_moves_stay_within_reach(self) -> None:
+        m = np.zeros((1, 2), dtype=np.int64)
+        table = np.full((2, 1, 1, 2), 30.0)  # the one pair is unsure of every jump
+        u = np.zeros((LEVELS, 1, 2))
+        u[1:, 0, 0] = 100.0  # the left pixel is sure of level 0 ...
+        u[:, 0, 1] = np.arange(LEVELS)[::-1]  # ... and the right one wants the top level, beyond the reach
+        k = region_moves(m, np.zeros((1, 2), int), table, np.zeros((2, 1, 2), int), u, 8)
+        assert k.tolist() == [[0, _REACH]]
+
+    def test_huge_rollover_counts(self) -> None:
+        m = np.zeros((30, 30), dtype=np.int64)
+        k = np.zeros((30, 30), dtype=np.int64)
+        k[0, 0], k[5, 5] = 10**12, -(10**9)  # far apart, and no sure pair: 900 regions
+        out = region_moves(m, k, np.full((2, 5, 30, 30), 5.0), np.full((2, 30, 30), -2), np.zeros((LEVELS, 30, 30)), 8)
+        assert np.array_equal(out, k)  # flat level costs, unsure pairs: nothing to gain
+
+    def test_degenerate_planes(self) -> None:
+        u = np.zeros((LEVELS, 1, 1))
+        assert region_moves(
+            np.zeros((1, 1)), np.zeros((1, 1), int), np.zeros((2, 1, 1, 1)), np.zeros((2, 1, 1)), u, 8
+        ).shape == (1, 1)
+        empty = np.zeros((0, 4))
+        assert region_moves(
+            empty, empty.astype(int), np.zeros((2, 1, 0, 4)), np.zeros((2, 0, 4)), np.zeros((LEVELS, 0, 4)), 8
+        ).shape == (0, 4)
+
+
+class TestOption:
+    def test_levels_false_runs_no_region_moves(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        calls = []
+        real = levels_module.region_moves
+        monkeypatch.setattr(levels_module, "region_moves", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+        modulus = torch.from_numpy(np.stack([lamp(32), lamp(32) + 7]) % 256)
+        off = unwrap_single(modulus, method="learned", levels=False)
+        assert not calls
+        assert torch.equal(off, unwrap_single(modulus, method="learned", levels=False, tile=8))
+        unwrap_single(modulus, method="learned")
+        assert len(calls) == 2  # once per channel
+        calls.clear()
+        assert np.array_equal(learned_k(modulus, 8, levels=True)[0], learned_k(modulus, 8, levels=load_levels())[0])
+        assert len(calls) == 4
+
+    def test_default_moves_regions_exactly(self) -> None:
+        truth = torch.from_numpy(np.stack([lamp(48), lamp(48) * 1.3, lamp(48) * 0.7]).round())
+        modulus = truth % 256
+        out = unwrap_single(modulus, method="learned", workers=1)
+        k = (out - modulus) / 256
+        assert torch.equal(k, torch.round(k)) and bool((k >= 0).all())
+        assert torch.equal(out, unwrap_single(modulus, method="learned", levels=True, workers=1))
+        batch = unwrap_single(torch.stack([modulus, modulus.flip(-1)]), method="learned", workers=1)
+        assert torch.equal(batch[1], unwrap_single(modulus.flip(-1), method="learned", workers=1))

@@ -1,0 +1,414 @@
+"""Learned levels: a per-pixel distribution over the rollover count, and region moves that use it.
+
+The spanning tree of ``method="learned"`` (:func:`~torch_modulo.singleshot.learned.decode_jumps`) fails mostly by
+whole regions one or two periods off: a region ringed by steps the network is unsure of hangs on the one pair the
+tree crossed it by. Neighbour steps cannot settle such a region; its own content can. Texture under multiplicative
+shading is larger in counts where the radiance is higher, so a wrapped step of a given size says more about ``k`` at
+a low modulus than at a high one, and lamps, skies and windows look like what they are. :class:`LevelNet` (the
+edge network's trunk, fine-tuned, with a small head of four convolutions on its full- and half-resolution features)
+predicts per pixel and channel a distribution over ``k`` in ``0 .. LEVELS - 1`` (:func:`predict_levels`).
+
+:func:`region_moves` decodes exactly, in integers: the whole plane first moves by the level the head prefers; then
+the plane is cut into the regions joined by pairs the edge network is sure of, and each region may move by
+``-2 .. 2`` periods where the head's costs (``-log p(k)``) plus the costs of the region's moved border pairs drop.
+Every round moves the regions whose drop is larger than all their neighbours', until none drops. Every output is
+``I_m + k 2^N`` with integer ``k``.
+
+The shipped weights (``weights/levels.pt``, record in ``weights/MODEL_CARD.md``) load offline (:func:`load_levels`);
+the recipe that made them is ``research/level_head.py``.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Iterator
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from torch_modulo.singleshot.grid import components
+from torch_modulo.singleshot.learned import (
+    _DIRECTIONS,
+    _MAX_COST,
+    SLOTS,
+    TILE,
+    EdgeJumpNet,
+    _tiles,
+    edge_features,
+    tile_margin,
+)
+
+__all__ = ["LEVELS", "LEVEL_WEIGHTS", "LevelHead", "LevelNet", "load_levels", "predict_levels", "region_moves"]
+
+#: The file name of the shipped level weights inside ``torch_modulo/singleshot/weights``.
+LEVEL_WEIGHTS = "levels.pt"
+
+#: The levels the head tells apart: ``k = 0 .. LEVELS - 1`` (its training labels were clipped at the last).
+LEVELS = 16
+
+#: Rows of context the head's convolutions (dilations 1, 2, 4) see beyond a strip of its output.
+_HALO = 7
+
+#: Rows of a tile whose head input and level costs exist at once (:func:`predict_levels`).
+_STRIP = 64
+
+#: The moves a region may make in one round, in periods.
+_SHIFTS = (-2, -1, 1, 2)
+
+#: How far a region may end up from where the global move put it, in periods (farther moves are not tried).
+_REACH = 8
+
+#: :func:`region_moves` weighs the border pairs of this many at a time (a bound on its memory).
+_CHUNK = 2**18
+
+
+class LevelHead(nn.Module):
+    """Four convolutions (3 x 3 with dilations 1, 2, 4; then 1 x 1) from the edge network's features to level logits.
+
+    Shape:
+        - Input: (B, cin, H, W): the full-resolution features, the half-resolution decoder's features upsampled, and
+          the network's (B, 15, H, W) input (``cin = width + 2 width + 15`` of the edge network).
+        - Output: (B, 3, levels, H, W) logits per channel slot.
+
+    Example:
+        >>> LevelHead(cin=8, width=4, levels=5)(torch.zeros(1, 8, 6, 6)).shape
+        torch.Size([1, 3, 5, 6, 6])
+    """
+
+    def __init__(self, cin: int = 16 + 32 + 15, width: int = 32, levels: int = LEVELS) -> None:
+        super().__init__()
+        self.levels = int(levels)
+        self.net = nn.Sequential(
+            nn.Conv2d(cin, width, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(width, width, 3, padding=2, dilation=2),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(width, width, 3, padding=4, dilation=4),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(width, SLOTS * self.levels, 1),
+        )
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        b, _, h, w = features.shape
+        return self.net(features).view(b, SLOTS, self.levels, h, w)
+
+
+class LevelNet(nn.Module):
+    """An :class:`~torch_modulo.singleshot.learned.EdgeJumpNet` trunk and a :class:`LevelHead`: level logits per pixel.
+
+    Args:
+        config: the trunk's :class:`~torch_modulo.singleshot.learned.EdgeJumpNet` arguments.
+        width: the head's channels.
+        levels: the levels told apart (``k = 0 .. levels - 1``).
+
+    Shape:
+        - Input: (B, 15, H, W) :func:`~torch_modulo.singleshot.learned.edge_features`, ``H`` and ``W`` multiples of
+          :attr:`stride`.
+        - Output: (B, 3, levels, H, W) logits.
+
+    Example:
+        >>> net = LevelNet({"width": 4, "max_jump": 2}, width=4, levels=5)
+        >>> net(torch.zeros(1, 15, 8, 8)).shape
+        torch.Size([1, 3, 5, 8, 8])
+    """
+
+    def __init__(self, config: dict, width: int = 32, levels: int = LEVELS) -> None:
+        super().__init__()
+        self.trunk = EdgeJumpNet(**config)
+        self.head = LevelHead(3 * self.trunk.config["width"] + 5 * SLOTS, width, levels)
+        self.stride = self.trunk.stride
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.head(self.head_input(x, *self.trunk.encode(x)))
+
+    def head_input(
+        self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor, start: int = 0, stop: int | None = None
+    ) -> torch.Tensor:
+        """The head's input for rows ``start .. stop - 1`` of ``x`` from the trunk's :meth:`encode` output."""
+        stop = x.shape[-2] if stop is None else stop
+        up = F.interpolate(d2[..., start // 2 : (stop + 1) // 2, :], scale_factor=2.0, mode="nearest")
+        up = up[..., start - 2 * (start // 2) : stop - 2 * (start // 2), :]
+        return torch.cat([self.trunk.decode(e1, d2, start, stop), up, x[..., start:stop, :]], dim=1)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_cached(path: str, device: str) -> LevelNet:
+    try:
+        record = torch.load(path, map_location="cpu", weights_only=True)
+        levels = int(record["head"]["net.6.bias"].numel()) // SLOTS
+        net = LevelNet(record["config"], width=int(record["head"]["net.0.bias"].numel()), levels=levels)
+        net.trunk.load_state_dict({k: v.float() for k, v in record["state"].items()})
+        net.head.load_state_dict({k: v.float() for k, v in record["head"].items()})
+    except Exception as error:  # another kind of file, another network, a truncated copy: name the file
+        raise ValueError(
+            f"{path!r} is not a level weights file ({{'config': ..., 'state': ..., 'head': ...}} as "
+            f"research/level_head.py writes): {type(error).__name__}: {error}"
+        ) from error
+    return net.eval().to(device)  # one cached copy per device
+
+
+def load_levels(path: str | Path | None = None, device: torch.device | str = "cpu") -> LevelNet:
+    """The trained :class:`LevelNet` (eval mode), loaded offline.
+
+    Args:
+        path: a level weights file (as ``research/level_head.py`` writes); ``None`` loads the shipped one.
+        device: where to put the network.
+
+    Raises:
+        FileNotFoundError: there is no file at ``path``.
+        ValueError: the file is not a level weights file (the message names it).
+
+    Example:
+        >>> load_levels().head.levels
+        16
+    """
+    if path is None:
+        path = resources.files("torch_modulo.singleshot").joinpath("weights", LEVEL_WEIGHTS)
+    elif not Path(path).is_file():
+        raise FileNotFoundError(2, "weights file not found", str(path))
+    return _load_cached(str(path), str(torch.device(device)))
+
+
+def level_margin(net: LevelNet) -> int:
+    """The context a tile of :func:`predict_levels` needs on every side: the trunk's (:func:`tile_margin`) plus the
+    head's, rounded up to a multiple of the stride."""
+    margin = tile_margin(net.trunk) + _HALO + 1
+    return margin + (-margin % net.stride)
+
+
+@torch.no_grad()
+def _level_pieces(
+    net: LevelNet, moduli: torch.Tensor, bits: int, tile: int
+) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
+    """Per tile and strip of (C, H, W) moduli (C = 1 or 3): the piece's slices and its (C, levels, h, w) costs."""
+    c, h, w = moduli.shape
+    x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
+    ph, pw = -h % net.stride, -w % net.stride
+    x = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+    margin = level_margin(net)
+    for y0, y1, cy0, cy1 in _tiles(h + ph, tile, margin, net.stride):
+        for x0, x1, cx0, cx1 in _tiles(w + pw, tile, margin, net.stride):
+            cy1, cx1 = min(cy1, h), min(cx1, w)
+            window = edge_features(x[..., y0:y1, x0:x1], bits)
+            e1, d2 = net.trunk.encode(window)
+            for r0 in range(cy0, cy1, _STRIP):
+                r1 = min(cy1, r0 + _STRIP)
+                a, b = max(0, r0 - y0 - _HALO), min(y1 - y0, r1 - y0 + _HALO)  # the strip and its halo, in the window
+                logits = net.head(net.head_input(window, e1, d2, a, b))[0, :c, :, r0 - y0 - a : r1 - y0 - a]
+                yield (slice(r0, r1), slice(cx0, cx1)), -torch.log_softmax(logits[..., cx0 - x0 : cx1 - x0].float(), 1)
+
+
+def predict_levels(net: LevelNet, moduli: torch.Tensor, bits: int, tile: int = TILE) -> np.ndarray:
+    """Every pixel's cost ``-log p(k)`` of each level ``k``: float16 (C, levels, H, W) on the CPU.
+
+    The network runs on the moduli's device, in tiles of ``tile`` pixels (0: the whole image) with
+    :func:`level_margin` of context, and strips of rows; the result is the same up to float rounding.
+
+    Args:
+        net: the network.
+        moduli: (C, H, W) moduli, C = 1 (seen as grey) or 3 (seen together); other channel counts are predicted
+            one channel at a time.
+        bits: the sensor bit depth ``N`` (the shipped network was trained at 8).
+        tile: the side of the tiles.
+
+    Example:
+        >>> costs = predict_levels(load_levels(), torch.zeros(1, 8, 8), 8)
+        >>> costs.shape, costs.dtype
+        ((1, 16, 8, 8), dtype('float16'))
+    """
+    c, h, w = moduli.shape
+    if c not in (1, SLOTS):
+        out = np.empty((c, net.head.levels, h, w), dtype=np.float16)
+        for i in range(c):
+            out[i : i + 1] = predict_levels(net, moduli[i : i + 1], bits, tile)
+        return out
+    out = np.empty((c, net.head.levels, h, w), dtype=np.float16)
+    for (ys, xs), cost in _level_pieces(net, moduli, bits, tile):
+        out[:, :, ys, xs] = cost.cpu().numpy()
+    return out
+
+
+def region_moves(
+    modulus: np.ndarray,
+    k: np.ndarray,
+    table: np.ndarray,
+    first: np.ndarray,
+    u: np.ndarray,
+    bits: int,
+    *,
+    weight: float = 1.0,
+    sure: float = 0.01,
+    rounds: int = 60,
+) -> np.ndarray:
+    """``k`` of one plane moved by the level costs: the global level, then whole regions (see the module docstring).
+
+    Args:
+        modulus: (H, W) integer moduli.
+        k: (H, W) integer rollover counts (e.g. the spanning tree's).
+        table: (2, K, H, W) costs ``-log p`` of K consecutive jumps per pair (direction 0: to the right, 1: down):
+            ``table[d, i]`` is the cost of the jump ``first[d] + i``; jumps outside cost 30, and costs are clipped to
+            it. The regions are joined by the pairs whose least cost in the table is at most ``sure``.
+        first: (2, H, W) integers: the jump of ``table``'s first entry per pair.
+        u: (L, H, W) every pixel's cost of each level (:func:`predict_levels`).
+        bits: the sensor bit depth ``N``.
+        weight: the weight of the level costs against the pairs'.
+        sure: pairs at most this costly join a region.
+        rounds: the most rounds of moves.
+
+    Returns:
+        int64 (H, W): ``k`` plus an integer per region (so ``modulus + k 2^N`` stays consistent with the modulus).
+
+    Example:
+        >>> m = np.array([[10, 10, 10, 10]])
+        >>> table = np.full((2, 3, 1, 4), 30.0); table[:, 1] = 0.0  # jumps -1, 0, 1: sure of 0 ...
+        >>> table[0, :, 0, 1] = [30.0, 1.0, 2.0]  # ... but for the middle pair, which may well be 1
+        >>> u = np.full((16, 1, 4), 9.0); u[0, 0, :2] = 0.0; u[1, 0, 2:] = 0.0  # the right half is a period up
+        >>> region_moves(m, np.zeros((1, 4), int), table, np.full((2, 1, 4), -1), u, 8).tolist()
+        [[0, 0, 1, 1]]
+    """
+    m = np.asarray(modulus, dtype=np.int64)
+    k = np.asarray(k, dtype=np.int64)
+    u = np.asarray(u)
+    period = 1 << bits
+    if k.size == 0:
+        return k.copy()
+    h, w = m.shape
+    levels = u.shape[0]
+    first = np.asarray(first, dtype=np.int64)
+    ids = np.arange(h * w).reshape(h, w)
+    joined = [np.asarray(table[d]).min(axis=0)[a] <= sure for d, (a, _) in enumerate(_DIRECTIONS)]
+    count, flat = components(
+        h * w,
+        np.concatenate([ids[a][j] for (a, _), j in zip(_DIRECTIONS, joined, strict=True)]),
+        np.concatenate([ids[b][j] for (_, b), j in zip(_DIRECTIONS, joined, strict=True)]),
+    )
+    del ids, joined
+    labels = flat.reshape(h, w)
+
+    def level_cost(kk: np.ndarray) -> np.ndarray:  # every pixel's cost at level kk (clipped to the head's levels)
+        return np.take_along_axis(u, np.clip(kk, 0, levels - 1)[None], 0)[0]
+
+    # The global move: the offset the level costs prefer (ties: the smallest move), over -LEVELS .. LEVELS. The
+    # costs per level of the pixels at each k give every offset's total at once; below -LEVELS and from 2 LEVELS - 1
+    # on, every such offset clips k alike.
+    by_k = (np.clip(k, -levels, 2 * levels - 1) + levels).ravel()
+    sums = np.stack([np.bincount(by_k, u[i].ravel(), 3 * levels) for i in range(levels)])
+    at = np.arange(3 * levels)
+
+    def total(g: int) -> float:
+        return float(sums[np.clip(at - levels + g, 0, levels - 1), at].sum())
+
+    offset = min(range(-levels, levels + 1), key=lambda g: (total(g), abs(g)))
+    k = k + offset
+    # Each region's level cost at every total move t in -_REACH .. _REACH from there, less that at t = 0.
+    base = np.bincount(flat, level_cost(k).ravel(), count)
+    level = np.empty((2 * _REACH + 1, count), dtype=np.float32)
+    for t in range(-_REACH, _REACH + 1):
+        level[t + _REACH] = weight * (np.bincount(flat, level_cost(k + t).ravel(), count) - base)
+    del base
+    # The pairs between regions (both directions): their regions, their jump now (as an index into their table)
+    # and their tables.
+    ends_a, ends_b, jumps, tables = [], [], [], []
+    for d, (a, b) in enumerate(_DIRECTIONS):
+        cross = labels[a] != labels[b]
+        wd = np.mod(m[b] - m[a] + period // 2, period) - period // 2
+        n = (m[b] + period * k[b] - m[a] - period * k[a] - wd)[cross] // period - first[d][a][cross]
+        ends_a.append(labels[a][cross])
+        ends_b.append(labels[b][cross])
+        jumps.append(n)
+        tables.append(np.clip(np.asarray(table[d])[(slice(None), *a)][:, cross], 0.0, _MAX_COST).astype(np.float32))
+    ra, rb, n0, lp = (np.concatenate(x, axis=-1) for x in (ends_a, ends_b, jumps, tables))
+    del ends_a, ends_b, jumps, tables
+    size = lp.shape[0]
+    shifts = np.asarray(_SHIFTS)
+    reach = int(np.abs(shifts).max())
+    steps = np.arange(-reach, reach + 1)[:, None]
+    # Every region's border pairs, region by region: the pair, and whether the region is its second end.
+    owner = np.concatenate([ra, rb])
+    order = np.argsort(owner, kind="stable")
+    incident, second = order % max(ra.size, 1), order >= ra.size
+    other = np.where(second, ra[incident], rb[incident])  # the region across each of those pairs
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=count))])
+    del owner, order
+
+    def entries(regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For ``regions``' border pairs: the position of the region in ``regions`` and the pair's entry."""
+        lengths = bounds[regions + 1] - bounds[regions]
+        local = np.repeat(np.arange(regions.size), lengths)
+        return local, np.arange(local.size) - np.repeat(np.cumsum(lengths) - lengths - bounds[regions], lengths)
+
+    def costs(index: np.ndarray, pair: np.ndarray | slice) -> np.ndarray:
+        """(2 reach + 1, n): the costs of pairs ``pair`` at their jumps (``index``, into their tables) moved by
+        ``-reach .. reach``."""
+        index = index + steps
+        inside = (index >= 0) & (index < size)
+        return np.where(inside, np.take_along_axis(lp[:, pair], np.clip(index, 0, size - 1), 0), _MAX_COST)
+
+    def drops(regions: np.ndarray, local: np.ndarray | None, entry: np.ndarray | None) -> np.ndarray:
+        """(len(shifts), len(regions)): how much the cost changes if each region moves by each shift now, from
+        ``entries(regions)`` (every region when ``regions`` is all of them: then pair by pair)."""
+        to = moved[regions] + shifts[:, None]
+        delta = np.where(np.abs(to) <= _REACH, level[np.clip(to, -_REACH, _REACH) + _REACH, regions], np.inf)
+        delta -= level[moved[regions] + _REACH, regions]
+        slots = np.arange(shifts.size)[:, None] * regions.size
+        # Moving the first region of a pair by s changes its jump by -s, moving the second by +s. In pieces of
+        # _CHUNK pairs (or entries), so the first rounds, with every region active, stay small in memory.
+        if regions.size == count:
+            for c0 in range(0, ra.size, _CHUNK):
+                part = slice(c0, c0 + _CHUNK)
+                cost = costs(n0[part] + moved[rb[part]] - moved[ra[part]], part)
+                for ends, sign in ((ra[part], -1), (rb[part], 1)):
+                    change = (cost[reach + sign * shifts[:, None]] - cost[reach]).ravel()
+                    delta += np.bincount((slots + ends).ravel(), change, delta.size).reshape(delta.shape)
+            return delta
+        assert local is not None and entry is not None
+        for c0 in range(0, entry.size, _CHUNK):
+            pair, flip, at = incident[entry[c0 : c0 + _CHUNK]], second[entry[c0 : c0 + _CHUNK]], local[c0 : c0 + _CHUNK]
+            cost = costs(n0[pair] + moved[rb[pair]] - moved[ra[pair]], pair)
+            change = np.where(flip, cost[reach + shifts[:, None]], cost[reach - shifts[:, None]]) - cost[reach]
+            delta += np.bincount((slots + at).ravel(), change.ravel(), delta.size).reshape(delta.shape)
+        return delta
+
+    def neighbours_best(regions: np.ndarray) -> np.ndarray:
+        """The largest drop (least ``best``) among each of ``regions``' neighbours (``inf``: none)."""
+        lengths = bounds[regions + 1] - bounds[regions]
+        out = np.full(regions.size, np.inf)
+        some = lengths > 0
+        if some.any():
+            values = best[other] if regions.size == count else best[other[entries(regions)[1]]]
+            out[some] = np.minimum.reduceat(values, (np.cumsum(lengths) - lengths)[some])
+        return out
+
+    mark = np.zeros(count, dtype=bool)
+
+    def union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The sorted regions in ``a`` or ``b``."""
+        mark[a] = True
+        mark[b] = True
+        out = np.flatnonzero(mark)
+        mark[out] = False
+        return out
+
+    moved = np.zeros(count, dtype=np.int64)  # each region's total move
+    best = np.zeros(count)  # the largest drop of the cost a move of each region gives now (negative: a drop) ...
+    choice = np.zeros(count, dtype=np.int64)  # ... and that move (an index into shifts)
+    active = np.arange(count)  # the regions whose drop must be computed again: the movers and their neighbours
+    for _ in range(rounds):
+        every = active.size == count  # the first round: pair by pair, no entries needed
+        local, entry = (None, None) if every else entries(active)
+        delta = drops(active, local, entry)
+        best[active], choice[active] = delta.min(axis=0), delta.argmin(axis=0)
+        # A region moves when its drop is larger than all its neighbours' (no two neighbours move in one round);
+        # only the active regions and their neighbours can decide differently from the last round.
+        candidates = active if every else union(active, other[entry])
+        move = (best[candidates] < -1e-6) & (best[candidates] < neighbours_best(candidates))
+        if not move.any():
+            break
+        movers = candidates[move]
+        moved[movers] += shifts[choice[movers]]
+        active = union(movers, other[entries(movers)[1]])
+    return k + moved[labels]
