@@ -205,14 +205,15 @@ class TestDecoders:
             np.testing.assert_allclose(cost[:, :, d + 2][inside], expect[inside].clip(0, 30), atol=1e-5)
             assert bool((cost[:, :, d + 2][~inside] == 30).all())
 
-    def test_mosaics_run_cuts_by_default(self) -> None:
-        learned, guided, chosen = spec("learned"), spec("guided"), spec("learned", max_cuts=0)
-        assert dict(mosaic_spec(learned).options)["max_cuts"] == MOSAIC_CUTS
+    def test_mosaics_run_cuts_and_no_levels_by_default(self) -> None:
+        learned, guided, chosen = spec("learned"), spec("guided"), spec("learned", max_cuts=0, levels=True)
+        assert dict(mosaic_spec(learned).options) == {"max_cuts": MOSAIC_CUTS, "levels": False}
         assert mosaic_spec(chosen) == chosen and mosaic_spec(guided) == guided
+        assert dict(mosaic_spec(spec("learned", max_cuts=0)).options) == {"max_cuts": 0, "levels": False}
         rgb = torch.from_numpy(np.stack([scene(16, s) for s in range(3)])).float()
         m = mosaic(rgb, "GRBG") % 256
         out = unwrap_single(m, cfa="GRBG")
-        assert torch.equal(out, unwrap_single(m, cfa="GRBG", max_cuts=MOSAIC_CUTS))
+        assert torch.equal(out, unwrap_single(m, cfa="GRBG", max_cuts=MOSAIC_CUTS, levels=False))
         assert torch.equal(torch.remainder(out, 256), m)
 
     def test_learned_k_grey_and_colour(self) -> None:

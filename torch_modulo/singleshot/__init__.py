@@ -5,11 +5,12 @@ the methods of :data:`METHODS`:
 
 - ``"learned"`` (default): a small network (weights shipped in the package) predicts the rollover jump of every
   neighbour pair, the channels of a colour image seen together; an exact integer decoder (most likely spanning
-  tree, optionally min-cut moves) turns it into ``k`` (:mod:`torch_modulo.singleshot.learned`). The network runs on
-  the input's device, the tree on the CPU.
+  tree, optionally min-cut moves) turns it into ``k`` (:mod:`torch_modulo.singleshot.learned`); a second network's
+  per-pixel level costs then move whole regions by whole periods (option ``levels``,
+  :mod:`torch_modulo.singleshot.levels`). The networks run on the input's device, the decoding on the CPU.
 - ``"guided"``: reliability-guided path following (Herraez et al. 2002) without a graph cut, the channels of a
   colour image on one shared tree, so that a step that is steep in one channel is avoided in all
-  (:mod:`torch_modulo.singleshot.pathfollow`); about 2.5 times faster than ``"learned"`` on the CPU. Under strong
+  (:mod:`torch_modulo.singleshot.pathfollow`); several times faster than ``"learned"`` on the CPU. Under strong
   noise in the low bits pass ``denoise=0.7`` (or use ``"fast"``).
 - ``"fast"``: the paper's energy (Eqs. 3-5, :mod:`torch_modulo.singleshot.energy`) and binary graph-cut moves
   (:mod:`torch_modulo.singleshot.graphcut`) on a cheaper schedule: start from path following when the wrapped
@@ -94,8 +95,8 @@ class SingleShotInfo:
         method: the method used.
         confidence: per-value confidence in ``(0, 1]`` from the same run, with the shape, dtype and device of the
             output, for the methods that give one (``"learned"``: the map of
-            :func:`~torch_modulo.learned_confidence`, of the spanning tree before any ``max_cuts`` moves; of a
-            mosaic, that of its interpolated guide at each photosite), else None.
+            :func:`~torch_modulo.learned_confidence`, of the spanning tree before any ``max_cuts`` or ``levels``
+            moves; of a mosaic, that of its interpolated guide at each photosite), else None.
     """
 
     energies: list[list[list[float]]] = field(default_factory=list)
@@ -234,8 +235,8 @@ def unwrap_single(
             are interpolated on the circle to full resolution (:func:`torch_modulo.cfa.interpolate_wrapped`), that
             RGB image is unwrapped (the methods that solve channels together share one tree across the colours),
             and the restored mosaic keeps each photosite's own count; the info has one entry per colour (C = 3).
-            ``"learned"`` then runs 4 min-cut moves after its tree unless ``max_cuts`` is given
-            (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`).
+            ``"learned"`` then runs 4 min-cut moves after its tree and no level moves unless ``max_cuts`` or
+            ``levels`` is given (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`).
             Demosaic the restored counts (:func:`torch_modulo.cfa.demosaic`), never the modulus.
         **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
             ``"auto"``), ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase),
@@ -246,12 +247,14 @@ def unwrap_single(
             image's phasor first; about 0.7 for frames with noise in the low bits), ``tile_pixels`` (default
             ``2**22``: larger images build their spanning tree in blocks of at most that many pixels, which needs
             less memory and gives a minimum spanning tree of the same pairs; 0: the whole image at once).
-            ``"learned"``: ``weights``
-            (default None: the weights shipped in the package; or a weights file), ``max_cuts`` (default 0, 4 on a
-            mosaic: the most likely tree alone; more: binary moves weighing every pair's probability after it),
-            ``augment``
-            (default False: True averages the network over the image's four flips), ``tile`` (default 768: the
-            network predicts tiles of that side with their context, which bounds memory; 0: the whole image). ``"lsq"``:
+            ``"learned"``: ``weights`` (default None: the weights shipped in the package; or a weights file),
+            ``levels`` (default True: a second network's per-pixel level costs move whole regions after the tree,
+            :mod:`torch_modulo.singleshot.levels`; a path: a level weights file; False: the tree alone, faster;
+            docs/singleshot.md has the numbers), ``max_cuts`` (default 0, 4 on a mosaic: the most likely tree
+            alone; more: binary moves weighing every pair's probability after it, before the level moves),
+            ``augment`` (default False: True averages the network over the image's four flips), ``tile`` (default
+            768: the networks predict tiles of that side with their context, which bounds memory; 0: the whole
+            image). ``"lsq"``:
             ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),
             ``cg_iterations`` (default 10: conjugate-gradient steps per round), ``colour`` (default True: the
             channels of an image share their weights; False: each channel alone).
