@@ -283,6 +283,28 @@ class TestUnwrap:
         assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *guided, "--confidence") == 0
         assert (tmp_path / "out" / "img.confidence.exr").exists()
 
+    def test_single_shot_method_options(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        from torch_modulo.singleshot import levels as levels_module
+
+        calls = []
+        real = levels_module.region_moves
+        monkeypatch.setattr(levels_module, "region_moves", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+        (tmp_path / "in").mkdir()
+        counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
+        write_image(tmp_path / "in" / "img.png", torch.remainder(counts, 256), {"bits": 8})
+        tree = ("--single", "--method", "learned:levels=False")
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *tree) == 0
+        assert not calls  # the option reached unwrap_single
+        meta = read_metadata(tmp_path / "out" / "img.exr")
+        assert meta["solver"] == "learned" and meta["solver_options"] == {"levels": False}
+        assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *tree) == 0  # the same options: skipped
+        assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["img.png"]
+        assert (
+            _cli("unwrap", tmp_path / "in", tmp_path / "out", "--single", "--method", "learned") == 0
+        )  # others: redone
+        assert _names(_report(tmp_path / "out", "unwrap")["done"]) == ["img.png"] and calls
+        assert "solver_options" not in read_metadata(tmp_path / "out" / "img.exr")
+
     def test_single_shot_learned_confidence(self, tmp_path: Path) -> None:
         from torch_modulo.singleshot import learned_confidence
 
@@ -1019,6 +1041,13 @@ BAD_OPTIONS = [
     (["unwrap", "{in}", "{out}", "--single", "--solver", "magic"], "--solver must be one of"),
     (["unwrap", "{in}"], "the following arguments are required: OUT"),
     (["unwrap", "{in}", "{out}", "--method", "fast"], "--method fast is a single-shot method: use it with --single"),
+    (["unwrap", "{in}", "{out}", "--single", "--method", "learned:levels"], "method options must read key=value"),
+    (["unwrap", "{in}", "{out}", "--single", "--method", "magic:levels=False"], "--method must be one of"),
+    (
+        ["unwrap", "{in}", "{out}", "--single", "--method", "learned:levels=maybe"],
+        "bad --method 'learned:levels=maybe'",
+    ),
+    (["unwrap", "{in}", "{out}", "--single", "--method", "guided:speed=2"], "bad --method 'guided:speed=2'"),
     (["unwrap", "{in}", "{out}", "--single", "--method", "robust"], "--method must be one of"),
     (["tonemap", "{in}", "{out}", "--nonfinite", "zero"], "invalid choice: 'zero'"),
     (["simulate", "{in}", "{out}", "--merge-timeout", "0"], "expected a finite number > 0; got '0'"),

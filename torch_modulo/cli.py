@@ -430,6 +430,7 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
         "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
         "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
+        "  torch-modulo unwrap big_frames/ radiance/ --single --bits 8 --method learned:levels=False   # faster\n"
         "  torch-modulo unwrap colour/ radiance/                   # mosaics (simulate --cfa): demosaiced RGB\n"
         "  torch-modulo unwrap camera/ radiance/ --single --bits 8 --cfa RGGB   # mosaicked modulus images\n"
         + _FOLDER_EPILOG.format(command="unwrap"),
@@ -485,9 +486,11 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         help="multi shot: the rule, robust (default; exact without noise for ratios up to 2^bits - 1 and integer "
         "ratios up to 2^bits, and the one "
         "that decodes with a noise model) or paper (Eq. 6 as printed, noise-free); with --single: the method of "
-        "unwrap_single, learned (the shipped network's rollover jumps, decoded exactly; the default), guided (path "
-        "following, channels together), fast (the paper's graph cut on a cheaper schedule), paper (Eqs. 3-5 from "
-        "k = 0, slow) or lsq (DCT least squares); --solver is its deprecated former name (--single only)",
+        "unwrap_single, learned (the shipped network's rollover jumps, decoded exactly, then its level moves; the "
+        "default), guided (path following, channels together), fast (the paper's graph cut on a cheaper "
+        "schedule), paper (Eqs. 3-5 from k = 0, slow) or lsq (DCT least squares), optionally with unwrap_single's "
+        "options for it as NAME:KEY=VALUE,... (e.g. learned:levels=False, the tree alone, faster; "
+        "guided:denoise=0.7); --solver is its deprecated former name (--single only)",
     )
     unwrap.add_argument(
         "--cfa",
@@ -623,13 +626,22 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
         sub.error(
             "--method paper decodes Eqs. 6-7 as printed and takes no noise model: use --method robust, or --noise none"
         )
-    rule, method = "robust", None  # the option keys stay "method" (multi shot) and "solver" (single shot)
+    rule, method, method_options = "robust", None, {}  # the keys stay "method" (multi shot), "solver" (single shot)
     if args.single:
-        from torch_modulo.singleshot import METHODS
+        from torch_modulo.protocols import parse_method
+        from torch_modulo.singleshot import METHODS, SingleShotUnwrap
 
-        if args.method is not None and args.method not in METHODS:
-            sub.error(f"{option} must be one of {', '.join(sorted(METHODS))}; got {args.method!r}")
-        method = args.method
+        if args.method is not None:
+            try:
+                method, method_options = parse_method(args.method)
+            except ValueError as error:
+                sub.error(f"{option}: {error}")
+            if method not in METHODS:
+                sub.error(f"{option} must be one of {', '.join(sorted(METHODS))}; got {args.method!r}")
+            try:  # the options are checked now, before any file: an unknown one, a bad value, a missing file
+                SingleShotUnwrap(bits=8, method=method, **method_options)
+            except (TypeError, ValueError, FileNotFoundError) as error:
+                sub.error(f"bad {option} {args.method!r}: {error}")
     elif option == "--solver":
         sub.error("--solver applies to --single only")
     elif args.method is not None:
@@ -653,6 +665,8 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
         "_solver_workers": None if args.workers == 1 else 1,
     }
     # Only when not the default: outputs completed before these options existed stay complete.
+    if method_options:
+        options["solver_options"] = dict(sorted(method_options.items()))
     if args.cfa is not None:
         options["cfa"] = args.cfa
     if not args.demosaic:

@@ -518,7 +518,13 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
     image, bits, exposure, truth, cfa = _single_frame(task, options)
     method = {"method": options["solver"]} if options["solver"] is not None else {}
     counts, solved = unwrap_single(
-        image.unsqueeze(0), bits, workers=options["_solver_workers"], cfa=cfa, return_info=True, **method
+        image.unsqueeze(0),
+        bits,
+        workers=options["_solver_workers"],
+        cfa=cfa,
+        return_info=True,
+        **method,
+        **options.get("solver_options", {}),
     )
     counts = counts[0]
     radiance, colour = restored_colour(counts.double() / exposure, cfa, demosaic=options.get("demosaic", True))
@@ -528,6 +534,7 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
         "exposure": exposure,
         "method": "single",
         "solver": options["solver"] or "default",
+        **({"solver_options": options["solver_options"]} if options.get("solver_options") else {}),
         "unit": "counts per unit exposure",
         **colour,
     }
