@@ -292,11 +292,12 @@ class TestUnwrap:
         (tmp_path / "in").mkdir()
         counts = torch.floor(torch.linspace(0, 900, 24).view(1, 1, 24).expand(1, 10, 24)).contiguous()
         write_image(tmp_path / "in" / "img.png", torch.remainder(counts, 256), {"bits": 8})
-        tree = ("--single", "--method", "learned:levels=False")
+        tree = ("--single", "--method", "learned: levels=false")  # spaces and any case
         assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *tree) == 0
         assert not calls  # the option reached unwrap_single
         meta = read_metadata(tmp_path / "out" / "img.exr")
         assert meta["solver"] == "learned" and meta["solver_options"] == {"levels": False}
+        assert meta["learned_version"] == 2
         assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *tree) == 0  # the same options: skipped
         assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["img.png"]
         assert (
@@ -1048,6 +1049,9 @@ BAD_OPTIONS = [
         "bad --method 'learned:levels=maybe'",
     ),
     (["unwrap", "{in}", "{out}", "--single", "--method", "guided:speed=2"], "bad --method 'guided:speed=2'"),
+    (["unwrap", "{in}", "{out}", "--single", "--method", "learned:cfa=RGGB"], "cfa is not a method option; use --cfa"),
+    (["unwrap", "{in}", "{out}", "--single", "--method", "fast:workers=2"], "workers is not a method option"),
+    (["unwrap", "{in}", "{out}", "--method", "learned:levels=False"], "is a single-shot method: use it with --single"),
     (["unwrap", "{in}", "{out}", "--single", "--method", "robust"], "--method must be one of"),
     (["tonemap", "{in}", "{out}", "--nonfinite", "zero"], "invalid choice: 'zero'"),
     (["simulate", "{in}", "{out}", "--merge-timeout", "0"], "expected a finite number > 0; got '0'"),

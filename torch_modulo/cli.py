@@ -474,7 +474,8 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         help="with --single: also write OUT/<image>.confidence.exr, unwrap_confidence's map (1: the rollover count "
         "is determined by the image; 0: it was guessed, take a second exposure there; of a mosaic, per colour "
         "plane, one value per photosite); with the learned method (the default; not a mosaic), "
-        "learned_confidence's map, from the network's probabilities of the same run",
+        "learned_confidence's map, from the network's probabilities of the same run (that of its tree, before "
+        "any level moves)",
     )
     unwrap.add_argument(
         "--method",
@@ -638,6 +639,10 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
                 sub.error(f"{option}: {error}")
             if method not in METHODS:
                 sub.error(f"{option} must be one of {', '.join(sorted(METHODS))}; got {args.method!r}")
+            reserved = {"bits": "--bits", "cfa": "--cfa", "workers": "--workers", "method": "--method"}
+            for key in sorted(set(method_options) & {*reserved, "return_info"}):
+                where = f"; use {reserved[key]}" if key in reserved else ""
+                sub.error(f"{option} {args.method!r}: {key} is not a method option{where}")
             try:  # the options are checked now, before any file: an unknown one, a bad value, a missing file
                 SingleShotUnwrap(bits=8, method=method, **method_options)
             except (TypeError, ValueError, FileNotFoundError) as error:
@@ -648,7 +653,7 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
         if args.method not in _MULTI_RULES:
             from torch_modulo.singleshot import METHODS
 
-            if args.method in METHODS:
+            if args.method.partition(":")[0] in METHODS:
                 sub.error(f"--method {args.method} is a single-shot method: use it with --single")
             choices = ", ".join(repr(r) for r in _MULTI_RULES)
             sub.error(f"argument --method/--solver: invalid choice: {args.method!r} (choose from {choices})")
@@ -667,6 +672,9 @@ def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> d
     # Only when not the default: outputs completed before these options existed stay complete.
     if method_options:
         options["solver_options"] = dict(sorted(method_options.items()))
+    if args.single and method in (None, "learned"):
+        # "learned" moves regions by its level costs since version 2: its earlier outputs are not complete.
+        options["learned_version"] = 2
     if args.cfa is not None:
         options["cfa"] = args.cfa
     if not args.demosaic:

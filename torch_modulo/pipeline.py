@@ -535,6 +535,7 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
         "method": "single",
         "solver": options["solver"] or "default",
         **({"solver_options": options["solver_options"]} if options.get("solver_options") else {}),
+        **({"learned_version": options["learned_version"]} if options.get("learned_version") else {}),
         "unit": "counts per unit exposure",
         **colour,
     }
@@ -567,7 +568,8 @@ def unwrap_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     with the noise model recorded in the stack's metadata, noise-free where there is none; None: noise-free; or a
     preset name or :class:`~torch_modulo.sensors.NoiseModel` fields), ``solver`` (the single-shot method; None:
     the default), ``confidence``, ``_solver_workers`` (processes of the single-shot solver) and, optionally,
-    ``cfa`` and ``demosaic``.
+    ``solver_options`` (keyword options of the method, JSON values), ``learned_version`` (recorded in the metadata;
+    it keeps outputs of an earlier ``"learned"`` from counting as complete), ``cfa`` and ``demosaic``.
 
     With ``single``, the input is a modulus image or a frame stack of one exposure (as ``simulate`` writes it).
     Where a stack holds its ground truth (:data:`TRUTH_FILE`), the result is scored against it: single shot by

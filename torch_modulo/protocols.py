@@ -472,7 +472,8 @@ def score_scene(restored: torch.Tensor, truth: torch.Tensor, bits: int = 8, peak
 def parse_method(spec: str) -> tuple[str, dict[str, object]]:
     """Split a method specification ``"name:key=value,key=value"`` into the name and its keyword options.
 
-    Values become ``bool`` (``True``/``False``), ``int`` or ``float`` where they read as one, else stay strings.
+    Values become ``bool`` (``True``/``False``, any case), ``int`` or ``float`` where they read as one, else stay
+    strings; spaces around keys and values are dropped.
 
     Raises:
         ValueError: the name is empty or an option has no ``=``.
@@ -482,6 +483,8 @@ def parse_method(spec: str) -> tuple[str, dict[str, object]]:
         ('fast', {'init': 'quality', 'tile': 0, 'denoise': 0.7})
         >>> parse_method("guided")
         ('guided', {})
+        >>> parse_method("learned: levels=false")
+        ('learned', {'levels': False})
     """
     if not isinstance(spec, str):
         raise TypeError(f"spec must be a string; got {spec!r}")
@@ -489,13 +492,14 @@ def parse_method(spec: str) -> tuple[str, dict[str, object]]:
     if not name:
         raise ValueError(f"spec must start with a method name; got {spec!r}")
     options: dict[str, object] = {}
-    for item in filter(None, rest.split(",")):
+    for item in filter(None, (part.strip() for part in rest.split(","))):
         key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
         if not sep or not key:
             raise ValueError(f"method options must read key=value; got {item!r} in {spec!r}")
         parsed: object = value
-        if value in ("True", "False"):
-            parsed = value == "True"
+        if value.lower() in ("true", "false"):
+            parsed = value.lower() == "true"
         else:
             for cast in (int, float):
                 try:

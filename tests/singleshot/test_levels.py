@@ -3,6 +3,8 @@ region moves (exact, never costlier, fixing a region a period off), and the ``le
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -282,6 +284,11 @@ class TestOption:
         calls.clear()
         assert np.array_equal(learned_k(modulus, 8, levels=True)[0], learned_k(modulus, 8, levels=load_levels())[0])
         assert len(calls) == 4
+        path = str(Path(levels_module.__file__).parent / "weights" / "levels.pt")
+        assert np.array_equal(learned_k(modulus, 8, levels=path)[0], learned_k(modulus, 8, levels=np.True_)[0])
+        assert np.array_equal(learned_k(modulus, 8, levels=np.False_)[0], learned_k(modulus, 8)[0])
+        with pytest.raises(TypeError, match="levels"):
+            learned_k(modulus, 8, levels=1)
 
     def test_default_moves_regions_exactly(self) -> None:
         truth = torch.from_numpy(np.stack([lamp(48), lamp(48) * 1.3, lamp(48) * 0.7]).round())

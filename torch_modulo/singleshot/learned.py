@@ -11,8 +11,9 @@ path following assumes).
 Decoding is exact and integer (:func:`decode_edges`): every pair gets its most likely jump and that jump's
 probability; the maximum-likelihood spanning tree (Kruskal over ``-log p``) joins the most confident pairs first,
 and ``k`` is integrated along it, so the output is always ``I_m + k 2^N`` with integer ``k``. The probability of
-the path from the root, ``prod p``, is a confidence per pixel. :func:`solve_learned` is the registry's solver; the
-caller anchors ``k`` (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
+the path from the root, ``prod p``, is a confidence per pixel. By default a second network's per-pixel level costs
+then move whole regions (option ``levels``, :mod:`torch_modulo.singleshot.levels`). :func:`solve_learned` is the
+registry's solver; the caller anchors ``k`` (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
 
 The shipped weights (``weights/edge_jump.pt``, record in ``weights/MODEL_CARD.md``) load offline from the package
 (:func:`load_model`). Training: :func:`edge_targets` and :func:`edge_loss` (cross-entropy, weighted up on the pairs
@@ -268,8 +269,9 @@ _MAX_COST = 30.0
 #: interpolated values mislead the tree more often than a full colour image does, and the cuts outvote them.
 MOSAIC_CUTS = 4
 
-#: With ``max_cuts``, the costs of the jumps within ``BAND`` of each pair's most likely one are kept for the cuts
-#: (:func:`refine_band`; farther jumps cost :data:`_MAX_COST`): ``2 (2 BAND + 1)`` values per pixel and channel.
+#: With ``max_cuts`` or ``levels``, the costs of the jumps within ``BAND`` of each pair's most likely one are kept for
+#: the cuts (:func:`refine_band`) and the level moves (farther jumps cost :data:`_MAX_COST`): ``2 (2 BAND + 1)``
+#: values per pixel and channel.
 BAND = 2
 
 #: A pair this likely (``p >= 0.99``) joins the reference region of :func:`decode_jumps`' confidence.
@@ -667,7 +669,8 @@ def learned_k(
 
     The network runs on its own device (the moduli are moved there), tile by tile; the decoding on the CPU. With
     ``max_cuts``, min-cut moves (:func:`refine_band`) follow the tree. With ``levels`` (a
-    :class:`~torch_modulo.singleshot.levels.LevelNet`, or ``True`` for the shipped one), regions are then moved by
+    :class:`~torch_modulo.singleshot.levels.LevelNet`, ``True`` for the shipped one, or a level weights file), regions
+    are then moved by
     its level costs (:func:`~torch_modulo.singleshot.levels.region_moves`; ``LEVELS`` float16 costs per pixel and
     channel are kept while the image is decoded). With either, the costs of the jumps within :data:`BAND` of each
     pair's most likely one are kept (``2 (2 BAND + 1)`` floats per pixel and channel). The confidence is that of
@@ -687,10 +690,11 @@ def learned_k(
     k = np.empty(x.shape, dtype=np.int64)
     confidence = np.empty(x.shape)
     device = next(net.parameters()).device
-    if levels is True or levels is False:
+    if levels is not None and not isinstance(levels, nn.Module):  # True, False or a level weights file
         from torch_modulo.singleshot.levels import load_levels
 
-        levels = load_levels(device=device) if levels else None
+        choice = check_levels(levels, "levels")
+        levels = None if choice is False else load_levels(None if choice is True else choice, device=device)
     band = BAND if max_cuts or levels is not None else 0
     jump, cost = predict_jumps(net, x.to(device=device, dtype=torch.float32), bits, augment, tile, band)
     if levels is not None:

@@ -1,10 +1,10 @@
 """Learned levels: a per-pixel distribution over the rollover count, and region moves that use it.
 
-The spanning tree of ``method="learned"`` (:func:`~torch_modulo.singleshot.learned.decode_jumps`) fails mostly by
-whole regions one or two periods off: a region ringed by steps the network is unsure of hangs on the one pair the
-tree crossed it by. Neighbour steps cannot settle such a region; its own content can. Texture under multiplicative
-shading is larger in counts where the radiance is higher, so a wrapped step of a given size says more about ``k`` at
-a low modulus than at a high one, and lamps, skies and windows look like what they are. :class:`LevelNet` (the
+The spanning tree of ``method="learned"`` (:func:`~torch_modulo.singleshot.learned.decode_jumps`) often puts whole
+regions one or two periods off (``research/learned_regions.py`` measures how much): a region ringed by steps the
+network is unsure of hangs on the one pair the tree crossed it by. Neighbour steps cannot settle such a region; the
+idea is that its own content can: texture under multiplicative shading is larger in counts where the radiance is
+higher, and lamps, skies and windows look like what they are. :class:`LevelNet` (the
 edge network's trunk, fine-tuned, with a small head of four convolutions on its full- and half-resolution features)
 predicts per pixel and channel a distribution over ``k`` in ``0 .. LEVELS - 1`` (:func:`predict_levels`).
 
