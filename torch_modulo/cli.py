@@ -487,10 +487,10 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         help="multi shot: the rule, robust (default; exact without noise for ratios up to 2^bits - 1 and integer "
         "ratios up to 2^bits, and the one "
         "that decodes with a noise model) or paper (Eq. 6 as printed, noise-free); with --single: the method of "
-        "unwrap_single, learned (the shipped network's rollover jumps, decoded exactly, then its level moves; the "
-        "default), guided (path following, channels together), fast (the paper's graph cut on a cheaper "
-        "schedule), paper (Eqs. 3-5 from k = 0, slow) or lsq (DCT least squares), optionally with unwrap_single's "
-        "options for it as NAME:KEY=VALUE,... (e.g. learned:levels=False, the tree alone, faster; "
+        "unwrap_single, learned (the shipped network's rollover jumps, decoded exactly, then its level moves, "
+        "not on mosaics; the default), guided (path following, channels together), fast (the paper's graph cut on "
+        "a cheaper schedule), paper (Eqs. 3-5 from k = 0, slow) or lsq (DCT least squares), optionally with "
+        "unwrap_single's options for it as NAME:KEY=VALUE,... (e.g. learned:levels=False, no level moves, faster; "
         "guided:denoise=0.7); --solver is its deprecated former name (--single only)",
     )
     unwrap.add_argument(

@@ -249,7 +249,7 @@ def unwrap_single(
             less memory and gives a minimum spanning tree of the same pairs; 0: the whole image at once).
             ``"learned"``: ``weights`` (default None: the weights shipped in the package; or a weights file),
             ``levels`` (default True: a second network's per-pixel level costs move whole regions after the tree,
-            :mod:`torch_modulo.singleshot.levels`; a path: a level weights file; False: the tree alone, faster;
+            :mod:`torch_modulo.singleshot.levels`; a path: a level weights file; False: no level moves, faster;
             docs/singleshot.md has the numbers), ``max_cuts`` (default 0, 4 on a mosaic: the most likely tree
             alone; more: binary moves weighing every pair's probability after it, before the level moves),
             ``augment`` (default False: True averages the network over the image's four flips), ``tile`` (default
