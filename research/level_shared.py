@@ -1,0 +1,170 @@
+"""A lighter level network that shares the shipped network's encoder: its own last decoder stage and a narrower head.
+
+``research/level_head.py``'s network (the one shipped as ``torch_modulo/singleshot/weights/levels.pt``) runs a
+whole second trunk, fine-tuned, and a head of width 32: about 1.5 times the shipped edge network's work, which puts
+grey images above the issue's 2 s per megapixel and channel. This variant reuses what the edge network computes
+anyway: its encoder's outputs (the full-resolution first features ``e1`` and the half-resolution decoder's ``d2``,
+:meth:`~torch_modulo.singleshot.learned.EdgeJumpNet.encode`), frozen; it trains its own copy of the last decoder
+stage (``dec1``, started from the shipped one) and a head of width ``--head-width`` on the level labels alone.
+
+    python -m research.level_shared train --steps 6000 --out /tmp/shared.pt      # ~30 min on 2 cores
+    python -m research.level_shared eval --weights /tmp/shared.pt --split train   # vs the tree, and timing
+
+Evaluation decodes as the package does (the shipped tree, then :func:`torch_modulo.singleshot.levels.region_moves`)
+and prints exact-k / rolled-over right (%) per protocol, and the seconds per megapixel of the level prediction.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from torch_modulo import protocols
+from torch_modulo.singleshot.learned import BAND, EdgeJumpNet, decode_jumps, edge_features, load_model, predict_jumps
+from torch_modulo.singleshot.levels import LEVELS, LevelHead, region_moves
+
+BITS = 8
+PERIOD = 1 << BITS
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class SharedLevels(nn.Module):
+    """Level logits from the edge network's ``encode`` outputs: its own ``dec1`` and a :class:`LevelHead`."""
+
+    def __init__(self, edge: EdgeJumpNet, head_width: int = 24, levels: int = LEVELS) -> None:
+        super().__init__()
+        self.dec1 = copy.deepcopy(edge.dec1)
+        w = edge.config["width"]
+        self.head = LevelHead(3 * w + 15, head_width, levels)
+
+    def forward(self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor) -> torch.Tensor:
+        up = F.interpolate(d2, scale_factor=2.0, mode="nearest")
+        features = self.dec1(torch.cat([up, e1], dim=1))
+        return self.head(torch.cat([features, up, x], dim=1))
+
+
+def load(path: Path, edge: EdgeJumpNet) -> SharedLevels:
+    record = torch.load(path, map_location="cpu", weights_only=True)
+    net = SharedLevels(edge, record["head_width"], record["levels"])
+    net.load_state_dict({k: v.float() for k, v in record["state"].items()})
+    return net.eval()
+
+
+@torch.no_grad()
+def level_costs(edge: EdgeJumpNet, net: SharedLevels, moduli: torch.Tensor) -> np.ndarray:
+    """(C, LEVELS, H, W) float16 costs of (C, H, W) moduli (whole image at once; research only)."""
+    c, h, w = moduli.shape
+    x = moduli[None].float().expand(1, 3, h, w)
+    x = F.pad(x, (0, (-w) % edge.stride, 0, (-h) % edge.stride), mode="replicate")
+    features = edge_features(x, BITS)
+    logits = net(features, *edge.encode(features))[0, :c, :, :h, :w]
+    return (-torch.log_softmax(logits, dim=1)).numpy().astype(np.float16)
+
+
+def train(args: argparse.Namespace) -> None:
+    sys.path.insert(0, str(ROOT / "references" / "learned_single"))
+    import train as recipe  # the training recipe's batches: CC0/BSD and procedural scenes only
+
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    options = recipe.parse_args(["--crop", "128", "--batch", "6", "--scene-exposure", "0.5"])
+    rng = np.random.default_rng(args.seed)
+    scenes = recipe.load_train_scenes(options.scene_side, options.data)
+    references = [recipe.exposure_references(s) for s in scenes]
+    edge = load_model()
+    net = SharedLevels(edge, args.head_width).train()
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    start, smooth = time.perf_counter(), None
+    for step in range(args.steps):
+        for group in opt.param_groups:
+            group["lr"] = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
+        wrapped, counts = recipe.make_batch(scenes, options.batch, options.crop, rng, options, references)
+        x = edge_features(wrapped, BITS)
+        with torch.no_grad():
+            e1, d2 = edge.encode(x)
+        levels = torch.floor(counts / PERIOD).long().clamp_(0, LEVELS - 1)
+        logits = net(x, e1, d2).permute(0, 1, 3, 4, 2).reshape(-1, LEVELS)
+        loss = F.cross_entropy(logits, levels.reshape(-1))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        value = float(loss.detach())
+        smooth = value if smooth is None else 0.98 * smooth + 0.02 * value
+        if (step + 1) % 50 == 0:
+            print(f"step {step + 1}/{args.steps} loss {smooth:.4f} {time.perf_counter() - start:.0f}s", flush=True)
+    record = {
+        "head_width": args.head_width,
+        "levels": LEVELS,
+        "state": {k: v.detach().half() for k, v in net.state_dict().items()},
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(record, args.out)
+
+
+def evaluate(args: argparse.Namespace) -> None:
+    torch.set_num_threads(args.threads)
+    edge = load_model()
+    net = load(args.weights, edge)
+    folder = args.data or protocols.DEV_SCENES
+    scenes = protocols.list_scenes(folder, split=args.split if args.data is None else "all")
+    for proto in args.protocols:
+        rows, seconds, pixels = [], 0.0, 0
+        for path in scenes:
+            truth = protocols.protocol_counts(protocols.load_scene(path, 512), proto)
+            moduli = torch.remainder(truth, PERIOD).to(torch.int64)
+            planes = moduli.numpy()
+            jump, cost = predict_jumps(edge, moduli.float(), BITS, band=BAND)
+            start = time.perf_counter()
+            u = level_costs(edge, net, moduli)
+            seconds += time.perf_counter() - start
+            pixels += planes.size
+            row = []
+            for c in range(planes.shape[0]):
+                tree = decode_jumps(planes[c], jump[c], cost[c, :, BAND], BITS)[0]
+                moved = region_moves(planes[c], tree, cost[c], jump[c].astype(np.int64) - BAND, u[c], BITS)
+                row.append((tree, moved))
+            out = []
+            for i in range(2):
+                k = np.stack([r[i] for r in row])
+                score = protocols.score_scene(torch.from_numpy(planes + PERIOD * k).double(), truth.double(), BITS)
+                out += [score.exact_k, score.rolled_over_right]
+            rows.append(out)
+        mean = 100 * np.nanmean(np.array(rows), axis=0)
+        print(
+            f"{proto} ({len(scenes)} scenes) tree {mean[0]:.2f} / {mean[1]:.2f} | moves {mean[2]:.2f} / {mean[3]:.2f}"
+            f" | levels {seconds / pixels * 1e6:.3f} s/MP/ch (whole image, not the package's strips)",
+            flush=True,
+        )
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    t = sub.add_parser("train", help="train the decoder stage and the head on the frozen encoder")
+    t.add_argument("--steps", type=int, default=6000)
+    t.add_argument("--lr", type=float, default=2e-3)
+    t.add_argument("--head-width", type=int, default=24)
+    t.add_argument("--seed", type=int, default=53)
+    t.add_argument("--threads", type=int, default=2)
+    t.add_argument("--out", type=Path, required=True)
+    e = sub.add_parser("eval", help="the shipped tree vs the region moves on the scenes")
+    e.add_argument("--weights", type=Path, required=True)
+    e.add_argument("--split", default="train", choices=protocols.SPLITS)
+    e.add_argument("--data", type=Path, default=None, help="another scenes folder (all its scenes)")
+    e.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))
+    e.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    (train if args.command == "train" else evaluate)(args)
+
+
+if __name__ == "__main__":
+    main()
