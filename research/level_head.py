@@ -72,7 +72,7 @@ def load(path: Path) -> tuple[EdgeJumpNet, LevelHead]:
     record = torch.load(path, map_location="cpu", weights_only=True)
     net = EdgeJumpNet(**record["config"])
     net.load_state_dict({k: v.float() for k, v in record["state"].items()})
-    head = LevelHead()
+    head = LevelHead(cin=16 + 32 + 15)
     head.load_state_dict({k: v.float() for k, v in record["head"].items()})
     return net.eval(), head.eval()
 
@@ -167,7 +167,7 @@ def train(args: argparse.Namespace) -> None:
     scenes = recipe.load_train_scenes(options.scene_side, options.data)
     references = [recipe.exposure_references(s) for s in scenes]
     net = copy.deepcopy(load_model())
-    head = LevelHead()
+    head = LevelHead(cin=16 + 32 + 15)
     if args.init is not None:  # a head trained before (e.g. with --frozen), and its network
         net, head = load(args.init)
     for p in net.parameters():

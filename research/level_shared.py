@@ -52,15 +52,32 @@ class SharedLevels(nn.Module):
         return self.head(torch.cat([features, up, x], dim=1))
 
 
-def load(path: Path, edge: EdgeJumpNet) -> SharedLevels:
+class HalfLevels(nn.Module):
+    """Level logits at half resolution from the edge network's ``d2`` and the input pooled 2 x 2, upsampled (nearest)
+    to full resolution: no full-resolution stage of its own."""
+
+    def __init__(self, edge: EdgeJumpNet, head_width: int = 32, levels: int = LEVELS) -> None:
+        super().__init__()
+        self.head = LevelHead(2 * edge.config["width"] + 15, head_width, levels)
+
+    def forward(self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor) -> torch.Tensor:
+        logits = self.head(torch.cat([d2, F.avg_pool2d(x, 2)], dim=1))
+        b, s, n, h, w = logits.shape
+        return F.interpolate(logits.reshape(b, s * n, h, w), scale_factor=2.0, mode="nearest").view(
+            b, s, n, 2 * h, 2 * w
+        )
+
+
+def load(path: Path, edge: EdgeJumpNet) -> nn.Module:
     record = torch.load(path, map_location="cpu", weights_only=True)
-    net = SharedLevels(edge, record["head_width"], record["levels"])
+    kind = HalfLevels if record.get("half") else SharedLevels
+    net = kind(edge, record["head_width"], record["levels"])
     net.load_state_dict({k: v.float() for k, v in record["state"].items()})
     return net.eval()
 
 
 @torch.no_grad()
-def level_costs(edge: EdgeJumpNet, net: SharedLevels, moduli: torch.Tensor) -> np.ndarray:
+def level_costs(edge: EdgeJumpNet, net: nn.Module, moduli: torch.Tensor) -> np.ndarray:
     """(C, LEVELS, H, W) float16 costs of (C, H, W) moduli (whole image at once; research only)."""
     c, h, w = moduli.shape
     x = moduli[None].float().expand(1, 3, h, w)
@@ -81,7 +98,7 @@ def train(args: argparse.Namespace) -> None:
     scenes = recipe.load_train_scenes(options.scene_side, options.data)
     references = [recipe.exposure_references(s) for s in scenes]
     edge = load_model()
-    net = SharedLevels(edge, args.head_width).train()
+    net = (HalfLevels if args.half else SharedLevels)(edge, args.head_width).train()
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     start, smooth = time.perf_counter(), None
     for step in range(args.steps):
@@ -102,6 +119,7 @@ def train(args: argparse.Namespace) -> None:
         if (step + 1) % 50 == 0:
             print(f"step {step + 1}/{args.steps} loss {smooth:.4f} {time.perf_counter() - start:.0f}s", flush=True)
     record = {
+        "half": args.half,
         "head_width": args.head_width,
         "levels": LEVELS,
         "state": {k: v.detach().half() for k, v in net.state_dict().items()},
@@ -146,6 +164,18 @@ def evaluate(args: argparse.Namespace) -> None:
         )
 
 
+def export(args: argparse.Namespace) -> None:
+    """A ``--half`` record as the package's level weights: the shipped edge network as the trunk, and the head."""
+    edge = load_model()
+    record = torch.load(args.weights, map_location="cpu", weights_only=True)
+    if not record.get("half"):
+        raise SystemExit(f"{args.weights}: only a --half record is the package's LevelNet")
+    head = {k.removeprefix("head."): v for k, v in record["state"].items() if k.startswith("head.")}
+    out = {"config": edge.config, "state": {k: v.half() for k, v in edge.state_dict().items()}, "head": head}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(out, args.out)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -153,6 +183,7 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--steps", type=int, default=6000)
     t.add_argument("--lr", type=float, default=2e-3)
     t.add_argument("--head-width", type=int, default=24)
+    t.add_argument("--half", action="store_true", help="a head at half resolution on d2 alone (HalfLevels)")
     t.add_argument("--seed", type=int, default=53)
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--out", type=Path, required=True)
@@ -162,8 +193,11 @@ def main(argv: list[str] | None = None) -> None:
     e.add_argument("--data", type=Path, default=None, help="another scenes folder (all its scenes)")
     e.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))
     e.add_argument("--threads", type=int, default=2)
+    x = sub.add_parser("export", help="a --half record as torch_modulo/singleshot/weights/levels.pt")
+    x.add_argument("--weights", type=Path, required=True)
+    x.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    (train if args.command == "train" else evaluate)(args)
+    {"train": train, "eval": evaluate, "export": export}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from torch_modulo.singleshot import SingleShotUnwrap, unwrap_single
+from torch_modulo.singleshot import SingleShotUnwrap, learned, unwrap_single
 from torch_modulo.singleshot import levels as levels_module
-from torch_modulo.singleshot.learned import _MAX_COST, BAND, edge_features, learned_k, load_model
+from torch_modulo.singleshot.learned import _MAX_COST, BAND, edge_features, learned_k, load_model, predict_jumps
 from torch_modulo.singleshot.levels import (
     _REACH,
-    _STRIP,
     LEVELS,
     LevelNet,
     level_margin,
@@ -108,14 +107,15 @@ class TestPrediction:
             y = x.clone()
             y[..., at, at] += 10.0
             with torch.no_grad():
-                changed = (net(x) - net(y)).abs().amax(dim=(0, 1, 2)) > 0
-            reach = max(reach, int((changed.nonzero() - at).abs().max()))
+                changed = (net(x) - net(y)).abs().amax(dim=(0, 1, 2)) > 0  # (H / 2, W / 2) blocks
+            blocks = changed.nonzero()
+            reach = max(reach, int(torch.maximum((2 * blocks - at).abs(), (2 * blocks + 1 - at).abs()).max()))
         assert reach < level_margin(net) <= reach + 2 * net.stride + 8
 
     @pytest.mark.parametrize("channels", [1, 3, 2])
-    def test_tiles_and_strips_equal_the_whole_network(self, channels: int) -> None:
+    def test_tiles_equal_the_whole_network(self, channels: int) -> None:
         net = tiny()
-        rows, cols = 2 * _STRIP + 23, 150  # not multiples of the pooling grid, more than two strips
+        rows, cols = 163, 150  # not multiples of the pooling grid
         moduli = torch.randint(0, 256, (channels, rows, cols), generator=torch.Generator().manual_seed(1))
         whole = predict_levels(net, moduli, 8, tile=0)
         assert whole.shape == (channels, 5, rows, cols) and whole.dtype == np.float16
@@ -124,11 +124,26 @@ class TestPrediction:
         for x in planes:
             padded = torch.nn.functional.pad(x.float()[None].expand(1, 3, rows, cols), (0, 2, 0, 1), mode="replicate")
             with torch.no_grad():
-                logits = net(edge_features(padded, 8))[0, : x.shape[0], :, :rows, :cols]
-            direct.append(-torch.log_softmax(logits, dim=1).numpy())
-        assert np.allclose(whole, np.concatenate(direct), atol=2e-2)
+                logits = net(edge_features(padded, 8))[0, : x.shape[0]]  # one per 2 x 2 block
+            cost = -torch.log_softmax(logits, dim=1).repeat_interleave(2, -2).repeat_interleave(2, -1)
+            direct.append(cost[..., :rows, :cols].numpy())
+        assert np.allclose(whole, np.concatenate(direct), atol=5e-3)
+        assert len(learned._tiles(cols, 40, level_margin(net), net.stride)) > 2  # really in tiles
         tiled = predict_levels(net, moduli, 8, tile=40)
-        assert np.allclose(tiled.astype(np.float32), whole.astype(np.float32), atol=2e-2)
+        assert np.allclose(tiled.astype(np.float32), whole.astype(np.float32), atol=5e-3)
+
+    @pytest.mark.parametrize("shape", [(3, 101, 90), (1, 64, 75), (2, 30, 33)])
+    def test_one_run_of_the_encoder_for_both(self, shape: tuple) -> None:
+        edge = load_model()
+        net = load_levels()
+        moduli = torch.randint(0, 256, shape, generator=torch.Generator().manual_seed(2)).float()
+        for tile in (0, 40):
+            jump, cost, u = predict_jumps(edge, moduli, 8, tile=tile, band=BAND, levels=net)
+            alone = predict_jumps(edge, moduli, 8, tile=tile, band=BAND)
+            assert np.array_equal(jump, alone[0]) and np.array_equal(cost, alone[1])
+            assert np.array_equal(u, predict_levels(net, moduli, 8, tile=tile))
+        with pytest.raises(ValueError, match="augment"):
+            predict_jumps(edge, moduli, 8, augment=True, levels=net)
 
     def test_no_channels(self) -> None:
         assert predict_levels(tiny(), torch.zeros(0, 8, 8), 8).shape == (0, 5, 8, 8)

@@ -316,7 +316,13 @@ def _tiles(n: int, tile: int, margin: int, stride: int = 4) -> list[tuple[int, i
 
 @torch.no_grad()  # on a generator: only while it runs, so the caller's mode holds between the pieces
 def _window_logp(
-    net: EdgeJumpNet, x: torch.Tensor, bits: int, augment: bool, channels: int, core: tuple[slice, slice]
+    net: EdgeJumpNet,
+    x: torch.Tensor,
+    bits: int,
+    augment: bool,
+    channels: int,
+    core: tuple[slice, slice],
+    hook: Callable[[torch.Tensor, torch.Tensor], None] | None = None,
 ) -> Iterator[tuple[int, torch.Tensor]]:
     """Jump log-probabilities of the ``core`` (rows, columns) of one (1, 3, h, w) window of moduli (``h`` and ``w``
     multiples of the network's stride): ``(first row of the piece in the core, (channels, 2, 2J + 1, rows, core
@@ -325,11 +331,16 @@ def _window_logp(
     Without ``augment``, the pieces are strips of :data:`STRIP` rows, so the head's logits (``2 (2J + 1)`` values
     per pixel and channel, the largest array of the network) and the last stage's input (:meth:`EdgeJumpNet.decode`)
     exist one strip at a time. With ``augment``, the four
-    flips' log-probabilities of the whole window are averaged and the core comes back in one piece.
+    flips' log-probabilities of the whole window are averaged and the core comes back in one piece. ``hook`` (not
+    with ``augment``) gets the window's features and the encoder's half-resolution output ``d2`` first (the level
+    head reads them, :mod:`torch_modulo.singleshot.levels`).
     """
     rows, cols = core
     if not augment:
-        e1, d2 = net.encode(edge_features(x, bits))
+        features = edge_features(x, bits)
+        e1, d2 = net.encode(features)
+        if hook is not None:
+            hook(features, d2)
         for r0 in range(rows.start, rows.stop, STRIP):
             strip = net.decode(e1, d2, r0, min(rows.stop, r0 + STRIP))[..., cols]
             yield r0 - rows.start, torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
@@ -344,7 +355,13 @@ def _window_logp(
 
 
 def _windows(
-    net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool, tile: int
+    net: EdgeJumpNet,
+    moduli: torch.Tensor,
+    bits: int,
+    augment: bool,
+    tile: int,
+    levels: Any = None,
+    costs: np.ndarray | None = None,
 ) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
     """Per tile of (C, H, W) moduli (C = 1 or 3), piece by piece (:func:`_window_logp`): the piece's slices and its
     (C, 2, 2J + 1, h, w) log-probabilities.
@@ -358,12 +375,23 @@ def _windows(
     x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
     ph, pw = -h % net.stride, -w % net.stride
     x = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+    hook = None
     margin = tile_margin(net)
+    if levels is not None:  # a level head on this network's encoder: its costs of each window go into `costs`
+        from torch_modulo.singleshot.levels import level_margin, window_costs
+
+        margin = max(margin, level_margin(levels))
     for y0, y1, cy0, cy1 in _tiles(h + ph, tile, margin, net.stride):
         for x0, x1, cx0, cx1 in _tiles(w + pw, tile, margin, net.stride):
             cy1, cx1 = min(cy1, h), min(cx1, w)  # the padding's own pairs are not returned
             core = (slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
-            for r, logp in _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c, core):
+            if levels is not None and costs is not None:
+
+                def hook(features: torch.Tensor, d2: torch.Tensor, core=core, at=(cy0, cy1, cx0, cx1)) -> None:
+                    piece = window_costs(levels, features, d2, c, *core)
+                    costs[:, :, at[0] : at[1], at[2] : at[3]] = piece.cpu().numpy()
+
+            for r, logp in _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c, core, hook):
                 yield (slice(cy0 + r, cy0 + r + logp.shape[-2]), slice(cx0, cx1)), logp
 
 
@@ -395,27 +423,41 @@ def predict_edges(
 
 
 def predict_jumps(
-    net: EdgeJumpNet, moduli: torch.Tensor, bits: int, augment: bool = False, tile: int = TILE, band: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
+    net: EdgeJumpNet,
+    moduli: torch.Tensor,
+    bits: int,
+    augment: bool = False,
+    tile: int = TILE,
+    band: int = 0,
+    levels: Any = None,
+) -> tuple[np.ndarray, ...]:
     """The most likely jump of every pair and its cost ``-log p``: what the tree decoder needs, two values per pair.
 
     The network runs on the moduli's device, tile by tile (see :func:`predict_edges`); only the two values per pair
     come back to the CPU, so memory grows with the tile, not with the image. With ``band``, the costs of the jumps
     ``n - band .. n + band`` around the most likely ``n`` come back too (what :func:`refine_band` weighs).
 
+    With ``levels``, a :class:`~torch_modulo.singleshot.levels.LevelNet` whose trunk is this network (not with
+    ``augment``), its level costs come from the same run of the encoder, as a third value (the same as
+    :func:`~torch_modulo.singleshot.levels.predict_levels`; the tiles take the larger context of the two).
+
     Returns:
         ``(jump, cost)``: int16 (C, 2, H, W) jumps ``n`` in ``[-J, J]`` (direction 0: to the right neighbour, 1: to
         the one below) and float32 costs ``>= 0``, (C, 2, H, W), or with ``band`` (C, 2, 2 band + 1, H, W) with the
-        most likely jump's at index ``band`` (jumps beyond ``+-J`` cost ``30``).
+        most likely jump's at index ``band`` (jumps beyond ``+-J`` cost ``30``); with ``levels``, ``(jump, cost,
+        level_costs)``, float16 (C, levels, H, W).
     """
     c, h, w = moduli.shape
     if c not in (1, SLOTS):
-        parts = [predict_jumps(net, moduli[i : i + 1], bits, augment, tile, band) for i in range(c)]
-        return np.concatenate([j for j, _ in parts]), np.concatenate([k for _, k in parts])
+        parts = [predict_jumps(net, moduli[i : i + 1], bits, augment, tile, band, levels) for i in range(c)]
+        return tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
+    if levels is not None and augment:
+        raise ValueError("predict_jumps shares the encoder with the levels without augment only")
+    level_costs = None if levels is None else np.empty((c, levels.head.levels, h, w), dtype=np.float16)
     jump = np.empty((c, 2, h, w), dtype=np.int16)
     cost = np.empty((c, 2, *((2 * band + 1,) if band else ()), h, w), dtype=np.float32)
     offsets = torch.arange(-band, band + 1, device=moduli.device).view(1, 1, -1, 1, 1)
-    for (ys, xs), logp in _windows(net, moduli, bits, augment, tile):
+    for (ys, xs), logp in _windows(net, moduli, bits, augment, tile, levels, level_costs):
         best, index = logp.max(dim=2)
         jump[:, :, ys, xs] = index.cpu().numpy() - net.max_jump
         if band:
@@ -425,7 +467,7 @@ def predict_jumps(
             cost[:, :, :, ys, xs] = torch.where(inside, -near, _MAX_COST).clamp(0.0, _MAX_COST).cpu().numpy()
         else:
             cost[:, :, ys, xs] = (-best).clamp_min(0.0).cpu().numpy()
-    return jump, cost
+    return (jump, cost) if level_costs is None else (jump, cost, level_costs)
 
 
 def decode_edges(
@@ -696,12 +738,18 @@ def learned_k(
         choice = check_levels(levels, "levels")
         levels = None if choice is False else load_levels(None if choice is True else choice, device=device)
     band = BAND if max_cuts or levels is not None else 0
-    jump, cost = predict_jumps(net, x.to(device=device, dtype=torch.float32), bits, augment, tile, band)
-    if levels is not None:
-        from torch_modulo.singleshot.levels import predict_levels, region_moves
+    x_net = x.to(device=device, dtype=torch.float32)
+    if levels is not None and not augment and _same_network(levels.trunk, net):  # one run of the encoder for both
+        from torch_modulo.singleshot.levels import region_moves
 
-        level_device = next(levels.parameters()).device
-        u = predict_levels(levels, x.to(device=level_device, dtype=torch.float32), bits, tile)
+        jump, cost, u = predict_jumps(net, x_net, bits, augment, tile, band, levels)
+    else:
+        jump, cost = predict_jumps(net, x_net, bits, augment, tile, band)
+        if levels is not None:
+            from torch_modulo.singleshot.levels import predict_levels, region_moves
+
+            level_device = next(levels.parameters()).device
+            u = predict_levels(levels, x.to(device=level_device, dtype=torch.float32), bits, tile)
     for i in range(x.shape[0]):  # one channel's int64 moduli at a time
         plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
         k[i], confidence[i] = decode_jumps(plane, jump[i], cost[i, :, band] if band else cost[i], bits)
@@ -710,6 +758,15 @@ def learned_k(
         if levels is not None:  # last: the cuts weigh the pairs alone and would undo what the levels moved
             k[i] = region_moves(plane, k[i], cost[i], jump[i].astype(np.int64) - band, u[i], bits)
     return k, confidence
+
+
+@functools.lru_cache(maxsize=8)
+def _same_network(a: nn.Module, b: nn.Module) -> bool:
+    """Whether two networks (the cached copies of the loaders) hold the same weights on the same device."""
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(
+        sa[k].shape == sb[k].shape and sa[k].device == sb[k].device and torch.equal(sa[k], sb[k]) for k in sa
+    )
 
 
 def learned_confidence(

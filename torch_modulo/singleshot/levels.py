@@ -4,9 +4,9 @@ The spanning tree of ``method="learned"`` (:func:`~torch_modulo.singleshot.learn
 regions one or two periods off (``research/learned_regions.py`` measures how much): a region ringed by steps the
 network is unsure of hangs on the one pair the tree crossed it by. Neighbour steps cannot settle such a region; the
 idea is that its own content can: texture under multiplicative shading is larger in counts where the radiance is
-higher, and lamps, skies and windows look like what they are. :class:`LevelNet` (the
-edge network's trunk, fine-tuned, with a small head of four convolutions on its full- and half-resolution features)
-predicts per pixel and channel a distribution over ``k`` in ``0 .. LEVELS - 1`` (:func:`predict_levels`).
+higher, and lamps, skies and windows look like what they are. :class:`LevelNet` (a small head of four convolutions
+on the edge network's half-resolution features) predicts, for every 2 x 2 block of pixels and every channel, a
+distribution over ``k`` in ``0 .. LEVELS - 1`` (:func:`predict_levels`).
 
 :func:`region_moves` decodes exactly, in integers: the whole plane first moves by the level the head prefers; then
 the plane is cut into the regions joined by pairs the edge network is sure of, and each region may move by
@@ -15,7 +15,7 @@ Every round moves the regions whose drop is larger than all their neighbours', u
 ``I_m + k 2^N`` with integer ``k``.
 
 The shipped weights (``weights/levels.pt``, record in ``weights/MODEL_CARD.md``) load offline (:func:`load_levels`);
-the recipe that made them is ``research/level_head.py``.
+the recipe that made them is ``research/level_shared.py``.
 """
 
 from __future__ import annotations
@@ -42,7 +42,17 @@ from torch_modulo.singleshot.learned import (
     tile_margin,
 )
 
-__all__ = ["LEVELS", "LEVEL_WEIGHTS", "LevelHead", "LevelNet", "load_levels", "predict_levels", "region_moves"]
+__all__ = [
+    "LEVELS",
+    "LEVEL_WEIGHTS",
+    "LevelHead",
+    "LevelNet",
+    "level_margin",
+    "load_levels",
+    "predict_levels",
+    "region_moves",
+    "window_costs",
+]
 
 #: The file name of the shipped level weights inside ``torch_modulo/singleshot/weights``.
 LEVEL_WEIGHTS = "levels.pt"
@@ -50,11 +60,8 @@ LEVEL_WEIGHTS = "levels.pt"
 #: The levels the head tells apart: ``k = 0 .. LEVELS - 1`` (its training labels were clipped at the last).
 LEVELS = 16
 
-#: Rows of context the head's convolutions (dilations 1, 2, 4) see beyond a strip of its output.
+#: Half-resolution pixels of context the head's convolutions (dilations 1, 2, 4) see on every side.
 _HALO = 7
-
-#: Rows of a tile whose head input and level costs exist at once (:func:`predict_levels`).
-_STRIP = 64
 
 #: The moves a region may make in one round, in periods.
 _SHIFTS = (-2, -1, 1, 2)
@@ -67,11 +74,11 @@ _CHUNK = 2**18
 
 
 class LevelHead(nn.Module):
-    """Four convolutions (3 x 3 with dilations 1, 2, 4; then 1 x 1) from the edge network's features to level logits.
+    """Four convolutions (3 x 3 with dilations 1, 2, 4; then 1 x 1) from features to level logits.
 
     Shape:
-        - Input: (B, cin, H, W): the full-resolution features, the half-resolution decoder's features upsampled, and
-          the network's (B, 15, H, W) input (``cin = width + 2 width + 15`` of the edge network).
+        - Input: (B, cin, H, W) features (:class:`LevelNet`: the edge network's half-resolution ones and its input
+          pooled 2 x 2, ``cin = 2 width + 15``).
         - Output: (B, 3, levels, H, W) logits per channel slot.
 
     Example:
@@ -79,7 +86,7 @@ class LevelHead(nn.Module):
         torch.Size([1, 3, 5, 6, 6])
     """
 
-    def __init__(self, cin: int = 16 + 32 + 15, width: int = 32, levels: int = LEVELS) -> None:
+    def __init__(self, cin: int = 32 + 15, width: int = 32, levels: int = LEVELS) -> None:
         super().__init__()
         self.levels = int(levels)
         self.net = nn.Sequential(
@@ -98,7 +105,12 @@ class LevelHead(nn.Module):
 
 
 class LevelNet(nn.Module):
-    """An :class:`~torch_modulo.singleshot.learned.EdgeJumpNet` trunk and a :class:`LevelHead`: level logits per pixel.
+    """A :class:`LevelHead` at half resolution on an :class:`~torch_modulo.singleshot.learned.EdgeJumpNet`'s encoder.
+
+    The head sees the encoder's half-resolution features (``d2`` of
+    :meth:`~torch_modulo.singleshot.learned.EdgeJumpNet.encode`) and the input pooled 2 x 2; no full-resolution
+    stage runs, so the levels cost a fraction of the edge network. The trunk is a copy of the edge network it was
+    trained on (its jump head is not used).
 
     Args:
         config: the trunk's :class:`~torch_modulo.singleshot.learned.EdgeJumpNet` arguments.
@@ -108,31 +120,23 @@ class LevelNet(nn.Module):
     Shape:
         - Input: (B, 15, H, W) :func:`~torch_modulo.singleshot.learned.edge_features`, ``H`` and ``W`` multiples of
           :attr:`stride`.
-        - Output: (B, 3, levels, H, W) logits.
+        - Output: (B, 3, levels, H / 2, W / 2) logits, one per 2 x 2 block of pixels.
 
     Example:
         >>> net = LevelNet({"width": 4, "max_jump": 2}, width=4, levels=5)
         >>> net(torch.zeros(1, 15, 8, 8)).shape
-        torch.Size([1, 3, 5, 8, 8])
+        torch.Size([1, 3, 5, 4, 4])
     """
 
     def __init__(self, config: dict, width: int = 32, levels: int = LEVELS) -> None:
         super().__init__()
         self.trunk = EdgeJumpNet(**config)
-        self.head = LevelHead(3 * self.trunk.config["width"] + 5 * SLOTS, width, levels)
+        self.head = LevelHead(2 * self.trunk.config["width"] + 5 * SLOTS, width, levels)
         self.stride = self.trunk.stride
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.head(self.head_input(x, *self.trunk.encode(x)))
-
-    def head_input(
-        self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor, start: int = 0, stop: int | None = None
-    ) -> torch.Tensor:
-        """The head's input for rows ``start .. stop - 1`` of ``x`` from the trunk's :meth:`encode` output."""
-        stop = x.shape[-2] if stop is None else stop
-        up = F.interpolate(d2[..., start // 2 : (stop + 1) // 2, :], scale_factor=2.0, mode="nearest")
-        up = up[..., start - 2 * (start // 2) : stop - 2 * (start // 2), :]
-        return torch.cat([self.trunk.decode(e1, d2, start, stop), up, x[..., start:stop, :]], dim=1)
+        d2 = self.trunk.encode(x)[1]
+        return self.head(torch.cat([d2, F.avg_pool2d(x, 2)], dim=1))
 
 
 @functools.lru_cache(maxsize=4)
@@ -146,7 +150,7 @@ def _load_cached(path: str, device: str) -> LevelNet:
     except Exception as error:  # another kind of file, another network, a truncated copy: name the file
         raise ValueError(
             f"{path!r} is not a level weights file ({{'config': ..., 'state': ..., 'head': ...}} as "
-            f"research/level_head.py writes): {type(error).__name__}: {error}"
+            f"research/level_shared.py exports it): {type(error).__name__}: {error}"
         ) from error
     return net.eval().to(device)  # one cached copy per device
 
@@ -155,7 +159,7 @@ def load_levels(path: str | Path | None = None, device: torch.device | str = "cp
     """The trained :class:`LevelNet` (eval mode), loaded offline.
 
     Args:
-        path: a level weights file (as ``research/level_head.py`` writes); ``None`` loads the shipped one.
+        path: a level weights file (as ``research/level_shared.py export`` writes it); ``None`` loads the shipped one.
         device: where to put the network.
 
     Raises:
@@ -175,16 +179,29 @@ def load_levels(path: str | Path | None = None, device: torch.device | str = "cp
 
 def level_margin(net: LevelNet) -> int:
     """The context a tile of :func:`predict_levels` needs on every side: the trunk's (:func:`tile_margin`) plus the
-    head's, rounded up to a multiple of the stride."""
-    margin = tile_margin(net.trunk) + _HALO + 1
+    head's at half resolution, rounded up to a multiple of the stride."""
+    margin = tile_margin(net.trunk) + 2 * _HALO + 2
     return margin + (-margin % net.stride)
+
+
+def window_costs(
+    net: LevelNet, features: torch.Tensor, d2: torch.Tensor, channels: int, rows: slice, cols: slice
+) -> torch.Tensor:
+    """The (channels, levels, rows, cols) costs of the core ``rows, cols`` of one window (starting at even offsets)
+    from its (1, 15, h, w) features and its trunk's ``d2`` (each 2 x 2 block's cost repeated on its four pixels)."""
+    logits = net.head(torch.cat([d2, F.avg_pool2d(features, 2)], dim=1))
+    logits = logits[0, :channels, :, rows.start // 2 : (rows.stop + 1) // 2, cols.start // 2 : (cols.stop + 1) // 2]
+    cost = -torch.log_softmax(logits.float(), dim=1)
+    cost = cost.repeat_interleave(2, dim=-2).repeat_interleave(2, dim=-1)
+    return cost[..., : rows.stop - rows.start, : cols.stop - cols.start]
 
 
 @torch.no_grad()
 def _level_pieces(
     net: LevelNet, moduli: torch.Tensor, bits: int, tile: int
 ) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
-    """Per tile and strip of (C, H, W) moduli (C = 1 or 3): the piece's slices and its (C, levels, h, w) costs."""
+    """Per tile of (C, H, W) moduli (C = 1 or 3): the tile's slices and its (C, levels, h, w) costs (each 2 x 2 block's
+    cost repeated on its four pixels)."""
     c, h, w = moduli.shape
     x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
     ph, pw = -h % net.stride, -w % net.stride
@@ -192,21 +209,22 @@ def _level_pieces(
     margin = level_margin(net)
     for y0, y1, cy0, cy1 in _tiles(h + ph, tile, margin, net.stride):
         for x0, x1, cx0, cx1 in _tiles(w + pw, tile, margin, net.stride):
-            cy1, cx1 = min(cy1, h), min(cx1, w)
-            window = edge_features(x[..., y0:y1, x0:x1], bits)
-            e1, d2 = net.trunk.encode(window)
-            for r0 in range(cy0, cy1, _STRIP):
-                r1 = min(cy1, r0 + _STRIP)
-                a, b = max(0, r0 - y0 - _HALO), min(y1 - y0, r1 - y0 + _HALO)  # the strip and its halo, in the window
-                logits = net.head(net.head_input(window, e1, d2, a, b))[0, :c, :, r0 - y0 - a : r1 - y0 - a]
-                yield (slice(r0, r1), slice(cx0, cx1)), -torch.log_softmax(logits[..., cx0 - x0 : cx1 - x0].float(), 1)
+            # windows and cores start at multiples of the stride, so on the half-resolution grid too
+            features = edge_features(x[..., y0:y1, x0:x1], bits)
+            cy1, cx1 = min(cy1, h), min(cx1, w)  # the padding's own pixels are not returned
+            core = (slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
+            yield (
+                (slice(cy0, cy1), slice(cx0, cx1)),
+                window_costs(net, features, net.trunk.encode(features)[1], c, *core),
+            )
 
 
 def predict_levels(net: LevelNet, moduli: torch.Tensor, bits: int, tile: int = TILE) -> np.ndarray:
     """Every pixel's cost ``-log p(k)`` of each level ``k``: float16 (C, levels, H, W) on the CPU.
 
     The network runs on the moduli's device, in tiles of ``tile`` pixels (0: the whole image) with
-    :func:`level_margin` of context, and strips of rows; the result is the same up to float rounding.
+    :func:`level_margin` of context; the result is the same up to float rounding. Every 2 x 2 block of pixels (from
+    the top left) shares its costs.
 
     Args:
         net: the network.
