@@ -1,5 +1,6 @@
-"""A per-pixel level head trained with the edge-jump network, and region moves that use it: the prototype and the
-training of ``torch_modulo/singleshot/levels.py`` (shipped as ``weights/levels.pt``, the file this writes).
+"""A per-pixel level head trained with the edge-jump network, and region moves that use it: the prototype of
+``torch_modulo/singleshot/levels.py`` and its first level network (a fine-tuned second trunk with a full-resolution
+head; since replaced in the package by ``research/level_shared.py --half``, whose files the package loads).
 
 The learned tree fails mostly by whole regions a period off (``research.learned_regions``). A small head on the
 network's full- and half-resolution features predicts, per pixel and channel, a distribution over the rollover
@@ -15,13 +16,14 @@ so a wrapped step of a given size says more about ``k`` at a low modulus than at
 The output is ``I_m + k 2^N`` with integer ``k`` throughout. Training fine-tunes the shipped network and the head
 together (``edge_loss`` + ``beta`` x the head's cross-entropy), on the training recipe's own batches
 (``references/learned_single/train.py``: CC0/BSD scenes and procedural ones only), after the head alone on the
-frozen network (``--frozen``)::
+frozen network (``--frozen``). The weights those two commands wrote are in the history
+(``git show 03da5e0:research/weights/level_head.pt > research/weights/level_head.pt``)::
 
     python -m research.level_head train --frozen --steps 4000 --lr 2e-3 --out /tmp/head.pt     # ~15 min, 2 cores
     python -m research.level_head train --init /tmp/head.pt --steps 5000 --out research/weights/level_head.pt
-    python -m research.level_head eval --split train --lams 0.3 1 3     # default: the shipped levels.pt
-    python -m research.level_head eval --data <selection set>
-    python -m research.level_head eval --shipped-jumps --split validation   # the shipped tree, the head's levels
+    python -m research.level_head eval --weights research/weights/level_head.pt --split train --lams 0.3 1 3
+    python -m research.level_head eval --weights research/weights/level_head.pt --data <selection set>
+    python -m research.level_head eval --weights research/weights/level_head.pt --shipped-jumps --split validation
 
 Reported per protocol: mean exact-k / rolled-over right (%) of the tree and of the region moves at each ``lam``,
 scored per plane after aligning its global offset (``protocols.score_scene``), and the head's own accuracy.
@@ -254,7 +256,7 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--frozen", action="store_true", help="train the head alone on the shipped network's features")
     t.add_argument("--init", type=Path, default=None, help="start from a file this command wrote")
     e = sub.add_parser("eval", help="tree vs region moves on the scenes")
-    e.add_argument("--weights", type=Path, default=ROOT / "torch_modulo" / "singleshot" / "weights" / "levels.pt")
+    e.add_argument("--weights", type=Path, required=True, help="a file this command's train wrote")
     e.add_argument("--split", default="train", choices=protocols.SPLITS)
     e.add_argument("--data", type=Path, default=None, help="another scenes folder (all its scenes)")
     e.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))

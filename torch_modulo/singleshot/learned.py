@@ -11,7 +11,7 @@ path following assumes).
 Decoding is exact and integer (:func:`decode_edges`): every pair gets its most likely jump and that jump's
 probability; the maximum-likelihood spanning tree (Kruskal over ``-log p``) joins the most confident pairs first,
 and ``k`` is integrated along it, so the output is always ``I_m + k 2^N`` with integer ``k``. The probability of
-the path from the root, ``prod p``, is a confidence per pixel. By default a second network's per-pixel level costs
+the path from the root, ``prod p``, is a confidence per pixel. By default a small head's per-pixel level costs
 then move whole regions (option ``levels``, :mod:`torch_modulo.singleshot.levels`). :func:`solve_learned` is the
 registry's solver; the caller anchors ``k`` (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
 
