@@ -1,6 +1,7 @@
 """A per-pixel level head trained with the edge-jump network, and region moves that use it: the prototype of
 ``torch_modulo/singleshot/levels.py`` and its first level network (a fine-tuned second trunk with a full-resolution
-head; since replaced in the package by ``research/level_shared.py --half``, whose files the package loads).
+head; since replaced by ``research/level_shared.py --half``, whose ``export`` writes the package's ``levels.pt``; this
+script's files no longer load in the package: the head there reads other features).
 
 The learned tree fails mostly by whole regions a period off (``research.learned_regions``). A small head on the
 network's full- and half-resolution features predicts, per pixel and channel, a distribution over the rollover
@@ -17,7 +18,7 @@ The output is ``I_m + k 2^N`` with integer ``k`` throughout. Training fine-tunes
 together (``edge_loss`` + ``beta`` x the head's cross-entropy), on the training recipe's own batches
 (``references/learned_single/train.py``: CC0/BSD scenes and procedural ones only), after the head alone on the
 frozen network (``--frozen``). The weights those two commands wrote are in the history
-(``git show 03da5e0:research/weights/level_head.pt > research/weights/level_head.pt``)::
+(``mkdir -p research/weights && git show 03da5e0:research/weights/level_head.pt > research/weights/level_head.pt``)::
 
     python -m research.level_head train --frozen --steps 4000 --lr 2e-3 --out /tmp/head.pt     # ~15 min, 2 cores
     python -m research.level_head train --init /tmp/head.pt --steps 5000 --out research/weights/level_head.pt

@@ -1,14 +1,20 @@
-"""A lighter level network that shares the shipped network's encoder: its own last decoder stage and a narrower head.
+"""Lighter level networks on the shipped network's encoder, frozen, trained on the level labels alone.
 
-``research/level_head.py``'s network (the one shipped as ``torch_modulo/singleshot/weights/levels.pt``) runs a
-whole second trunk, fine-tuned, and a head of width 32: about 1.5 times the shipped edge network's work, which puts
-grey images above the issue's 2 s per megapixel and channel. This variant reuses what the edge network computes
-anyway: its encoder's outputs (the full-resolution first features ``e1`` and the half-resolution decoder's ``d2``,
-:meth:`~torch_modulo.singleshot.learned.EdgeJumpNet.encode`), frozen; it trains its own copy of the last decoder
-stage (``dec1``, started from the shipped one) and a head of width ``--head-width`` on the level labels alone.
+The first level network of the package (``research/level_head.py``, since replaced) ran a whole second trunk,
+fine-tuned, with a full-resolution head: about 1.5 times the edge network's work, which put grey images above the
+issue's 2 s per megapixel and channel. Two variants reuse what the edge network computes anyway (its encoder's
+outputs, :meth:`~torch_modulo.singleshot.learned.EdgeJumpNet.encode`):
 
-    python -m research.level_shared train --steps 6000 --out /tmp/shared.pt      # ~30 min on 2 cores
-    python -m research.level_shared eval --weights /tmp/shared.pt --split train   # vs the tree, and timing
+- ``--half`` (:class:`HalfLevels`, shipped as ``torch_modulo/singleshot/weights/levels.pt`` through ``export``): a
+  head of width ``--head-width`` at half resolution on the half-resolution features ``d2`` and the input pooled
+  2 x 2, one cost per 2 x 2 block;
+- without it (:class:`SharedLevels`, not kept): its own copy of the last decoder stage (``dec1``, started from the
+  shipped one) and a head at full resolution.
+
+    python -m research.level_shared train --half --head-width 32 --steps 4000 --seed 53 --out half.pt  # ~7 min
+    python -m research.level_shared export --weights half.pt --out torch_modulo/singleshot/weights/levels.pt
+    python -m research.level_shared eval --weights half.pt --split train    # vs the tree, and timing
+    python -m research.level_shared train --steps 4000 --out shared.pt       # the variant not kept, ~17 min
 
 Evaluation decodes as the package does (the shipped tree, then :func:`torch_modulo.singleshot.levels.region_moves`)
 and prints exact-k / rolled-over right (%) per protocol, and the seconds per megapixel of the level prediction.
@@ -179,7 +185,7 @@ def export(args: argparse.Namespace) -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
-    t = sub.add_parser("train", help="train the decoder stage and the head on the frozen encoder")
+    t = sub.add_parser("train", help="train a level head on the frozen encoder (with a decoder stage unless --half)")
     t.add_argument("--steps", type=int, default=6000)
     t.add_argument("--lr", type=float, default=2e-3)
     t.add_argument("--head-width", type=int, default=24)

@@ -253,8 +253,8 @@ def unwrap_single(
             docs/singleshot.md has the numbers), ``max_cuts`` (default 0, 4 on a mosaic: the most likely tree
             alone; more: binary moves weighing every pair's probability after it, before the level moves),
             ``augment`` (default False: True averages the network over the image's four flips), ``tile`` (default
-            768: the networks predict tiles of that side with their context, which bounds memory; 0: the whole
-            image). ``"lsq"``:
+            768: the network and its level head predict tiles of that side with their context, which bounds
+            memory; 0: the whole image). ``"lsq"``:
             ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),
             ``cg_iterations`` (default 10: conjugate-gradient steps per round), ``colour`` (default True: the
             channels of an image share their weights; False: each channel alone).

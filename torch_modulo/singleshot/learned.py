@@ -369,7 +369,9 @@ def _windows(
     The image is padded (replicated) to a multiple of the network's stride once, so every window, flipped or not,
     sees the whole image's pooling grid; a tile's window reaches the network's receptive radius beyond it
     (:func:`tile_margin`), so every pair of the tile (its last column's pair to the next column included) is
-    predicted from the same pixels as in the whole image.
+    predicted from the same pixels as in the whole image. With ``levels`` (a level network on this network's
+    encoder), each window's level costs are written into ``costs`` from the same run of the encoder, and the windows
+    take the larger context of the two (:func:`~torch_modulo.singleshot.levels.level_margin`).
     """
     c, h, w = moduli.shape
     x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
@@ -893,7 +895,7 @@ def _check_tile(value: object, name: str) -> int:
 #: The options of ``method="learned"``: name -> (default, check). ``weights``: ``None`` (the shipped weights) or
 #: a weights file; ``levels``: move the tree's regions by learned level costs
 #: (:mod:`~torch_modulo.singleshot.levels`; ``True``: the shipped level weights, a path: a level weights file,
-#: ``False``: the tree alone); ``max_cuts``: the most binary moves of :func:`refine_cut` after the tree (0: none);
+#: ``False``: no level moves); ``max_cuts``: the most binary moves of :func:`refine_band` after the tree (0: none);
 #: ``augment``: average the network's output over the four flips of the image (:func:`predict_edges`); ``tile``:
 #: the side of the tiles the network predicts at once (:data:`TILE`; 0: the whole image).
 LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {

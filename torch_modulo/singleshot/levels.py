@@ -109,8 +109,8 @@ class LevelNet(nn.Module):
 
     The head sees the encoder's half-resolution features (``d2`` of
     :meth:`~torch_modulo.singleshot.learned.EdgeJumpNet.encode`) and the input pooled 2 x 2; no full-resolution
-    stage runs, so the levels cost a fraction of the edge network. The trunk is a copy of the edge network it was
-    trained on (its jump head is not used).
+    decoder stage runs, so the levels cost a fraction of the edge network. The trunk is a copy of the edge network it
+    was trained on (its jump head is not used).
 
     Args:
         config: the trunk's :class:`~torch_modulo.singleshot.learned.EdgeJumpNet` arguments.
