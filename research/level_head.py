@@ -60,6 +60,7 @@ BITS = 8
 PERIOD = 1 << BITS
 SHIFTS = (-2, -1, 1, 2)
 ROOT = Path(__file__).resolve().parents[1]
+HEAD_INPUT = 16 + 32 + 15  # this head's input: full- and half-resolution features (upsampled) and the input
 
 
 def trunk_and_head_input(net: EdgeJumpNet, wrapped: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -75,7 +76,7 @@ def load(path: Path) -> tuple[EdgeJumpNet, LevelHead]:
     record = torch.load(path, map_location="cpu", weights_only=True)
     net = EdgeJumpNet(**record["config"])
     net.load_state_dict({k: v.float() for k, v in record["state"].items()})
-    head = LevelHead(cin=16 + 32 + 15)
+    head = LevelHead(cin=HEAD_INPUT)
     head.load_state_dict({k: v.float() for k, v in record["head"].items()})
     return net.eval(), head.eval()
 
@@ -170,7 +171,7 @@ def train(args: argparse.Namespace) -> None:
     scenes = recipe.load_train_scenes(options.scene_side, options.data)
     references = [recipe.exposure_references(s) for s in scenes]
     net = copy.deepcopy(load_model())
-    head = LevelHead(cin=16 + 32 + 15)
+    head = LevelHead(cin=HEAD_INPUT)
     if args.init is not None:  # a head trained before (e.g. with --frozen), and its network
         net, head = load(args.init)
     for p in net.parameters():

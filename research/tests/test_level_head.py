@@ -32,6 +32,6 @@ def test_region_moves_put_a_region_at_the_level_the_head_says() -> None:
 
 
 def test_the_head_sees_the_networks_features() -> None:
-    net, head = EdgeJumpNet(width=16, max_jump=3), level_head.LevelHead()
+    net, head = EdgeJumpNet(width=16, max_jump=3), level_head.LevelHead(cin=level_head.HEAD_INPUT)
     features, head_input = level_head.trunk_and_head_input(net, torch.zeros(2, 3, 8, 12))
     assert features.shape == (2, 16, 8, 12) and head(head_input).shape == (2, 3, level_head.LEVELS, 8, 12)
