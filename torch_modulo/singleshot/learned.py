@@ -762,9 +762,8 @@ def learned_k(
     return k, confidence
 
 
-@functools.lru_cache(maxsize=8)
 def _same_network(a: nn.Module, b: nn.Module) -> bool:
-    """Whether two networks (the cached copies of the loaders) hold the same weights on the same device."""
+    """Whether two networks hold the same weights on the same device (checked every call: a network may change)."""
     sa, sb = a.state_dict(), b.state_dict()
     return sa.keys() == sb.keys() and all(
         sa[k].shape == sb[k].shape and sa[k].device == sb[k].device and torch.equal(sa[k], sb[k]) for k in sa
