@@ -11,7 +11,7 @@ outputs, :meth:`~torch_modulo.singleshot.learned.EdgeJumpNet.encode`):
 - without it (:class:`SharedLevels`, not kept): its own copy of the last decoder stage (``dec1``, started from the
   shipped one) and a head at full resolution.
 
-    python -m research.level_shared train --half --head-width 32 --steps 4000 --seed 53 --out half.pt  # ~7 min
+    python -m research.level_shared train --half --head-width 32 --steps 12000 --seed 54 --out half.pt  # ~22 min
     python -m research.level_shared export --weights half.pt --out torch_modulo/singleshot/weights/levels.pt
     python -m research.level_shared eval --weights half.pt --split train    # vs the tree, and timing
     python -m research.level_shared train --steps 4000 --out shared.pt       # the variant not kept, ~17 min
