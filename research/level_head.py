@@ -37,6 +37,7 @@ import copy
 import math
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -160,9 +161,11 @@ def region_moves(
     return k
 
 
-def train(args: argparse.Namespace) -> None:
+def recipe_batches(args: argparse.Namespace) -> Callable[[], tuple[torch.Tensor, torch.Tensor]]:
+    """Seed torch (``args.seed``), set ``args.threads`` and load the training recipe's scenes (CC0/BSD and procedural
+    ones only, ``references/learned_single/train.py``): a function that draws one batch ``(wrapped, counts)``."""
     sys.path.insert(0, str(ROOT / "references" / "learned_single"))
-    import train as recipe  # the training recipe's batches: CC0/BSD and procedural scenes only
+    import train as recipe
 
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
@@ -170,6 +173,30 @@ def train(args: argparse.Namespace) -> None:
     rng = np.random.default_rng(args.seed)
     scenes = recipe.load_train_scenes(options.scene_side, options.data)
     references = [recipe.exposure_references(s) for s in scenes]
+    return lambda: recipe.make_batch(scenes, options.batch, options.crop, rng, options, references)
+
+
+def cosine(opt: torch.optim.Optimizer, lr: float, step: int, steps: int) -> None:
+    """Set the learning rate of step ``step`` of ``steps`` on a cosine from ``lr``."""
+    for group in opt.param_groups:
+        group["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
+
+
+class Progress:
+    """Prints a running mean of the loss every 50 steps."""
+
+    def __init__(self, steps: int) -> None:
+        self.steps, self.start, self.smooth = steps, time.perf_counter(), None
+
+    def __call__(self, step: int, value: float) -> None:
+        self.smooth = value if self.smooth is None else 0.98 * self.smooth + 0.02 * value
+        if (step + 1) % 50 == 0:
+            elapsed = time.perf_counter() - self.start
+            print(f"step {step + 1}/{self.steps} loss {self.smooth:.4f} {elapsed:.0f}s", flush=True)
+
+
+def train(args: argparse.Namespace) -> None:
+    batch = recipe_batches(args)
     net = copy.deepcopy(load_model())
     head = LevelHead(cin=HEAD_INPUT)
     if args.init is not None:  # a head trained before (e.g. with --frozen), and its network
@@ -180,11 +207,10 @@ def train(args: argparse.Namespace) -> None:
     head.train()
     params = [*head.parameters()] if args.frozen else [*net.parameters(), *head.parameters()]
     opt = torch.optim.Adam(params, lr=args.lr)
-    start, smooth = time.perf_counter(), None
+    progress = Progress(args.steps)
     for step in range(args.steps):
-        for group in opt.param_groups:
-            group["lr"] = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
-        wrapped, counts = recipe.make_batch(scenes, options.batch, options.crop, rng, options, references)
+        cosine(opt, args.lr, step, args.steps)
+        wrapped, counts = batch()
         target, _ = edge_targets(counts, BITS, net.max_jump)
         with torch.set_grad_enabled(not args.frozen):
             features, head_input = trunk_and_head_input(net, wrapped)
@@ -198,10 +224,7 @@ def train(args: argparse.Namespace) -> None:
         opt.zero_grad()
         loss.backward()
         opt.step()
-        value = float(loss.detach())
-        smooth = value if smooth is None else 0.98 * smooth + 0.02 * value
-        if (step + 1) % 50 == 0:
-            print(f"step {step + 1}/{args.steps} loss {smooth:.4f} {time.perf_counter() - start:.0f}s", flush=True)
+        progress(step, float(loss.detach()))
     record = {
         "config": net.config,
         "state": {k: v.detach().half() for k, v in net.state_dict().items()},

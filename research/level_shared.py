@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import math
-import sys
 import time
 from pathlib import Path
 
@@ -34,6 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from research.level_head import Progress, cosine, recipe_batches
 from torch_modulo import protocols
 from torch_modulo.singleshot.learned import BAND, EdgeJumpNet, decode_jumps, edge_features, load_model, predict_jumps
 from torch_modulo.singleshot.levels import LEVELS, LevelHead, region_moves
@@ -94,23 +93,14 @@ def level_costs(edge: EdgeJumpNet, net: nn.Module, moduli: torch.Tensor) -> np.n
 
 
 def train(args: argparse.Namespace) -> None:
-    sys.path.insert(0, str(ROOT / "references" / "learned_single"))
-    import train as recipe  # the training recipe's batches: CC0/BSD and procedural scenes only
-
-    torch.manual_seed(args.seed)
-    torch.set_num_threads(args.threads)
-    options = recipe.parse_args(["--crop", "128", "--batch", "6", "--scene-exposure", "0.5"])
-    rng = np.random.default_rng(args.seed)
-    scenes = recipe.load_train_scenes(options.scene_side, options.data)
-    references = [recipe.exposure_references(s) for s in scenes]
+    batch = recipe_batches(args)
     edge = load_model()
     net = (HalfLevels if args.half else SharedLevels)(edge, args.head_width).train()
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    start, smooth = time.perf_counter(), None
+    progress = Progress(args.steps)
     for step in range(args.steps):
-        for group in opt.param_groups:
-            group["lr"] = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
-        wrapped, counts = recipe.make_batch(scenes, options.batch, options.crop, rng, options, references)
+        cosine(opt, args.lr, step, args.steps)
+        wrapped, counts = batch()
         x = edge_features(wrapped, BITS)
         with torch.no_grad():
             e1, d2 = edge.encode(x)
@@ -120,10 +110,7 @@ def train(args: argparse.Namespace) -> None:
         opt.zero_grad()
         loss.backward()
         opt.step()
-        value = float(loss.detach())
-        smooth = value if smooth is None else 0.98 * smooth + 0.02 * value
-        if (step + 1) % 50 == 0:
-            print(f"step {step + 1}/{args.steps} loss {smooth:.4f} {time.perf_counter() - start:.0f}s", flush=True)
+        progress(step, float(loss.detach()))
     record = {
         "half": args.half,
         "head_width": args.head_width,

@@ -47,13 +47,7 @@ def load_script(path: Path):
     return module
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Small convolutions run fastest on one thread (and do not fight the other processes of a shared machine)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/singleshot/conftest.py
 
 
 def scene(size: int = 48, seed: int = 0) -> np.ndarray:

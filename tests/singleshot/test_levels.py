@@ -22,13 +22,7 @@ from torch_modulo.singleshot.levels import (
     region_moves,
 )
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/singleshot/conftest.py
 
 
 def tiny(seed: int = 0, levels: int = 5) -> LevelNet:
