@@ -64,6 +64,8 @@ __all__ = [
     "refine_cut",
     "solve_learned",
     "tile_margin",
+    "weights_path",
+    "window_grid",
 ]
 
 #: The file name of the shipped weights inside ``torch_modulo/singleshot/weights``.
@@ -234,11 +236,20 @@ def load_model(path: str | Path | None = None, device: torch.device | str = "cpu
         >>> load_model().max_jump
         15
     """
+    return _load_cached(weights_path(path, WEIGHTS), str(torch.device(device)))
+
+
+def weights_path(path: str | Path | None, shipped: str) -> str:
+    """``path`` as a string, or the shipped file ``shipped`` inside ``torch_modulo/singleshot/weights`` for ``None``.
+
+    Raises:
+        FileNotFoundError: there is no file at ``path``.
+    """
     if path is None:
-        path = resources.files("torch_modulo.singleshot").joinpath("weights", WEIGHTS)
-    elif not Path(path).is_file():
+        return str(resources.files("torch_modulo.singleshot").joinpath("weights", shipped))
+    if not Path(path).is_file():
         raise FileNotFoundError(2, "weights file not found", str(path))
-    return _load_cached(str(path), str(torch.device(device)))
+    return str(path)
 
 
 def _unflip(logp: torch.Tensor, dims: tuple[int, ...]) -> torch.Tensor:
@@ -373,28 +384,42 @@ def _windows(
     encoder), each window's level costs are written into ``costs`` from the same run of the encoder, and the windows
     take the larger context of the two (:func:`~torch_modulo.singleshot.levels.level_margin`).
     """
-    c, h, w = moduli.shape
-    x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
-    ph, pw = -h % net.stride, -w % net.stride
-    x = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
     hook = None
     margin = tile_margin(net)
     if levels is not None:  # a level head on this network's encoder: its costs of each window go into `costs`
         from torch_modulo.singleshot.levels import level_margin, window_costs
 
         margin = max(margin, level_margin(levels))
-    for y0, y1, cy0, cy1 in _tiles(h + ph, tile, margin, net.stride):
-        for x0, x1, cx0, cx1 in _tiles(w + pw, tile, margin, net.stride):
-            cy1, cx1 = min(cy1, h), min(cx1, w)  # the padding's own pairs are not returned
+    c = moduli.shape[0]
+    for window, core, (ys, xs) in window_grid(moduli, tile, margin, net.stride):
+        if levels is not None and costs is not None:
+
+            def hook(features: torch.Tensor, d2: torch.Tensor, core=core, at=(ys, xs)) -> None:
+                costs[:, :, at[0], at[1]] = window_costs(levels, features, d2, c, *core).cpu().numpy()
+
+        for r, logp in _window_logp(net, window, bits, augment, c, core, hook):
+            yield (slice(ys.start + r, ys.start + r + logp.shape[-2]), xs), logp
+
+
+def window_grid(
+    moduli: torch.Tensor, tile: int, margin: int, stride: int
+) -> Iterator[tuple[torch.Tensor, tuple[slice, slice], tuple[slice, slice]]]:
+    """The windows a network sees of (C, H, W) moduli (C = 1, repeated into the three slots, or 3): per tile
+    (:func:`_tiles`), the (1, 3, h, w) float window, its core's slices inside the window and the core's slices in the
+    image.
+
+    The image is padded (replicated) to a multiple of ``stride`` once, so every window sees the whole image's pooling
+    grid; the padding's own pixels are in no core.
+    """
+    c, h, w = moduli.shape
+    x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
+    ph, pw = -h % stride, -w % stride
+    x = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+    for y0, y1, cy0, cy1 in _tiles(h + ph, tile, margin, stride):
+        for x0, x1, cx0, cx1 in _tiles(w + pw, tile, margin, stride):
+            cy1, cx1 = min(cy1, h), min(cx1, w)
             core = (slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
-            if levels is not None and costs is not None:
-
-                def hook(features: torch.Tensor, d2: torch.Tensor, core=core, at=(cy0, cy1, cx0, cx1)) -> None:
-                    piece = window_costs(levels, features, d2, c, *core)
-                    costs[:, :, at[0] : at[1], at[2] : at[3]] = piece.cpu().numpy()
-
-            for r, logp in _window_logp(net, x[..., y0:y1, x0:x1], bits, augment, c, core, hook):
-                yield (slice(cy0 + r, cy0 + r + logp.shape[-2]), slice(cx0, cx1)), logp
+            yield x[..., y0:y1, x0:x1], core, (slice(cy0, cy1), slice(cx0, cx1))
 
 
 def predict_edges(
@@ -742,16 +767,16 @@ def learned_k(
     band = BAND if max_cuts or levels is not None else 0
     x_net = x.to(device=device, dtype=torch.float32)
     if levels is not None and not augment and _same_network(levels.trunk, net):  # one run of the encoder for both
-        from torch_modulo.singleshot.levels import region_moves
-
         jump, cost, u = predict_jumps(net, x_net, bits, augment, tile, band, levels)
     else:
         jump, cost = predict_jumps(net, x_net, bits, augment, tile, band)
         if levels is not None:
-            from torch_modulo.singleshot.levels import predict_levels, region_moves
+            from torch_modulo.singleshot.levels import predict_levels
 
             level_device = next(levels.parameters()).device
             u = predict_levels(levels, x.to(device=level_device, dtype=torch.float32), bits, tile)
+    if levels is not None:
+        from torch_modulo.singleshot.levels import region_moves
     for i in range(x.shape[0]):  # one channel's int64 moduli at a time
         plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
         k[i], confidence[i] = decode_jumps(plane, jump[i], cost[i, :, band] if band else cost[i], bits)
@@ -912,12 +937,7 @@ def _learned_ks(moduli: np.ndarray | torch.Tensor, spec: Any) -> tuple[np.ndarra
     device = moduli.device if isinstance(moduli, torch.Tensor) else torch.device("cpu")
     net = load_model(spec.option("weights"), device=device)
     options = (int(spec.option("max_cuts")), spec.option("augment"), int(spec.option("tile")))
-    levels, level_net = spec.option("levels"), None
-    if levels is not False:
-        from torch_modulo.singleshot.levels import load_levels
-
-        level_net = load_levels(None if levels is True else levels, device=device)
-    return learned_k(moduli, spec.params.bits, net, *options, levels=level_net)
+    return learned_k(moduli, spec.params.bits, net, *options, levels=spec.option("levels"))
 
 
 def solve_learned(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterator
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -37,9 +36,10 @@ from torch_modulo.singleshot.learned import (
     SLOTS,
     TILE,
     EdgeJumpNet,
-    _tiles,
     edge_features,
     tile_margin,
+    weights_path,
+    window_grid,
 )
 
 __all__ = [
@@ -135,7 +135,10 @@ class LevelNet(nn.Module):
         self.stride = self.trunk.stride
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        d2 = self.trunk.encode(x)[1]
+        return self.head_logits(x, self.trunk.encode(x)[1])
+
+    def head_logits(self, x: torch.Tensor, d2: torch.Tensor) -> torch.Tensor:
+        """The head's logits from the features ``x`` and the trunk's ``d2`` (its encoder's half-resolution output)."""
         return self.head(torch.cat([d2, F.avg_pool2d(x, 2)], dim=1))
 
 
@@ -170,11 +173,7 @@ def load_levels(path: str | Path | None = None, device: torch.device | str = "cp
         >>> load_levels().head.levels
         16
     """
-    if path is None:
-        path = resources.files("torch_modulo.singleshot").joinpath("weights", LEVEL_WEIGHTS)
-    elif not Path(path).is_file():
-        raise FileNotFoundError(2, "weights file not found", str(path))
-    return _load_cached(str(path), str(torch.device(device)))
+    return _load_cached(weights_path(path, LEVEL_WEIGHTS), str(torch.device(device)))
 
 
 def level_margin(net: LevelNet) -> int:
@@ -189,8 +188,8 @@ def window_costs(
 ) -> torch.Tensor:
     """The (channels, levels, rows, cols) costs of the core ``rows, cols`` of one window (starting at even offsets)
     from its (1, 15, h, w) features and its trunk's ``d2`` (each 2 x 2 block's cost repeated on its four pixels)."""
-    logits = net.head(torch.cat([d2, F.avg_pool2d(features, 2)], dim=1))
-    logits = logits[0, :channels, :, rows.start // 2 : (rows.stop + 1) // 2, cols.start // 2 : (cols.stop + 1) // 2]
+    half_rows, half_cols = slice(rows.start // 2, (rows.stop + 1) // 2), slice(cols.start // 2, (cols.stop + 1) // 2)
+    logits = net.head_logits(features, d2)[0, :channels, :, half_rows, half_cols]
     cost = -torch.log_softmax(logits.float(), dim=1)
     cost = cost.repeat_interleave(2, dim=-2).repeat_interleave(2, dim=-1)
     return cost[..., : rows.stop - rows.start, : cols.stop - cols.start]
@@ -202,21 +201,10 @@ def _level_pieces(
 ) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
     """Per tile of (C, H, W) moduli (C = 1 or 3): the tile's slices and its (C, levels, h, w) costs (each 2 x 2 block's
     cost repeated on its four pixels)."""
-    c, h, w = moduli.shape
-    x = moduli.float()[None].expand(1, SLOTS, h, w) if c == 1 else moduli.float()[None]
-    ph, pw = -h % net.stride, -w % net.stride
-    x = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
-    margin = level_margin(net)
-    for y0, y1, cy0, cy1 in _tiles(h + ph, tile, margin, net.stride):
-        for x0, x1, cx0, cx1 in _tiles(w + pw, tile, margin, net.stride):
-            # windows and cores start at multiples of the stride, so on the half-resolution grid too
-            features = edge_features(x[..., y0:y1, x0:x1], bits)
-            cy1, cx1 = min(cy1, h), min(cx1, w)  # the padding's own pixels are not returned
-            core = (slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
-            yield (
-                (slice(cy0, cy1), slice(cx0, cx1)),
-                window_costs(net, features, net.trunk.encode(features)[1], c, *core),
-            )
+    # windows and cores start at multiples of the stride, so on the half-resolution grid too
+    for window, core, at in window_grid(moduli, tile, level_margin(net), net.stride):
+        features = edge_features(window, bits)
+        yield at, window_costs(net, features, net.trunk.encode(features)[1], moduli.shape[0], *core)
 
 
 def predict_levels(net: LevelNet, moduli: torch.Tensor, bits: int, tile: int = TILE) -> np.ndarray:
