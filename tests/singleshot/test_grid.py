@@ -8,6 +8,7 @@ import pytest
 from torch_modulo.singleshot.grid import (
     components,
     dilate,
+    grid_components,
     integrate_wrapped,
     pair_indices,
     pair_offsets,
@@ -52,6 +53,21 @@ def test_dilate_grows_by_one_neighbourhood_step() -> None:
     assert dilate(mask, pair_offsets(4)).sum() == 5
     assert dilate(mask, pair_offsets(8)).sum() == 9
     assert mask.sum() == 1  # the input is not modified
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (6, 1), (9, 13)])
+@pytest.mark.parametrize("share", [0.0, 0.5, 0.8, 1.0])
+def test_grid_components_are_the_components_of_the_pairs(shape: tuple[int, int], share: float) -> None:
+    rng = np.random.default_rng(len(shape) + int(10 * share))
+    h, w = shape
+    right, down = rng.random((h, w - 1)) < share, rng.random((h - 1, w)) < share
+    ids = np.arange(h * w).reshape(h, w)
+    first = np.concatenate([ids[:, :-1][right], ids[:-1, :][down]])
+    second = np.concatenate([ids[:, 1:][right], ids[1:, :][down]])
+    count, labels = grid_components(right, down)
+    assert (count, labels.tolist()) == tuple(
+        x if i == 0 else x.tolist() for i, x in enumerate(components(h * w, first, second))
+    )
 
 
 def test_components_of_two_chains() -> None:

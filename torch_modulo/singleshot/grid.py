@@ -20,6 +20,7 @@ from torch_modulo._checks import check_choice
 __all__ = [
     "components",
     "dilate",
+    "grid_components",
     "integrate_wrapped",
     "pair_indices",
     "pair_offsets",
@@ -128,6 +129,33 @@ def components(n: int, rows: np.ndarray, cols: np.ndarray) -> tuple[int, np.ndar
 
     graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n)).tocsr()
     return connected_components(graph, directed=False)
+
+
+def grid_components(right: np.ndarray, down: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of an (H, W) pixel grid whose pairs are joined where ``right`` ((H, W - 1): a pixel and
+    its right neighbour) and ``down`` ((H - 1, W): a pixel and the one below) are true.
+
+    The same as :func:`components` on those pairs, labels included (numbered by their first pixel in raster order),
+    several times faster: the grid and its joined pairs become one binary image of (2H - 1, 2W - 1) cells, labelled
+    by ``scipy.ndimage.label``.
+
+    Returns:
+        ``(count, labels)``: the number of components and the (H W,) int component of every pixel.
+
+    Example:
+        >>> count, labels = grid_components(np.array([[True, False]]), np.zeros((0, 3), bool))
+        >>> count, labels.tolist()
+        (2, [0, 0, 1])
+    """
+    from scipy import ndimage
+
+    h, w = right.shape[0], down.shape[1]
+    cells = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool)
+    cells[::2, ::2] = True
+    cells[::2, 1::2] = right
+    cells[1::2, ::2] = down
+    labels, count = ndimage.label(cells)  # 4-connected; each component's first cell is a pixel
+    return int(count), labels[::2, ::2].ravel() - 1
 
 
 def path_to_root(parent: np.ndarray, values: np.ndarray, combine: np.ufunc = np.add) -> np.ndarray:
