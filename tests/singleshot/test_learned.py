@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import importlib.util
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +81,18 @@ class TestLoader:
         assert next(net.parameters()).device.type == "cpu"
         assert sum(p.numel() for p in net.parameters()) <= 2_000_000
         assert load_model() is net  # cached
+
+    def test_cpu_layout_is_the_same_network(self) -> None:
+        net = load_model()
+        convs = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
+        assert all(m.weight.is_contiguous(memory_format=torch.channels_last) for m in convs if m.kernel_size == (3, 3))
+        assert all(m.weight.is_contiguous() for m in convs if m.kernel_size == (1, 1))
+        plain = EdgeJumpNet(**net.config).eval()
+        plain.load_state_dict(net.state_dict())  # the same weights, every one channels first
+        x = edge_features(torch.from_numpy(np.stack([scene(40, s) for s in range(3)]) % 256)[None].float(), 8)
+        with torch.no_grad():
+            assert torch.allclose(net(x), plain(x), atol=1e-4)
+            assert net(x).is_contiguous()  # the jump logits come back channels first
 
     def test_weights_option(self, tmp_path) -> None:
         net = EdgeJumpNet(width=4, max_jump=3)
@@ -209,6 +222,23 @@ class TestDecoders:
         out = unwrap_single(m, cfa="GRBG")
         assert torch.equal(out, unwrap_single(m, cfa="GRBG", max_cuts=MOSAIC_CUTS, levels=False))
         assert torch.equal(torch.remainder(out, 256), m)
+
+    @pytest.mark.parametrize("levels", [False, True])
+    def test_channels_decoded_side_by_side_as_one_by_one(self, levels: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+        threads = set()
+
+        def decode(*args):
+            threads.add(threading.get_ident())
+            return decode_jumps(*args)
+
+        monkeypatch.setattr(learned, "decode_jumps", decode)
+        moduli = (np.stack([scene(40, s) for s in range(3)]) % 256).astype(np.int64)
+        one = learned_k(moduli, 8, levels=levels)  # one_thread: the channels one after the other, here
+        assert threads == {threading.get_ident()}
+        torch.set_num_threads(2)  # the fixture restores the count
+        two = learned_k(moduli, 8, levels=levels)
+        assert len(threads) > 1  # the pool's threads
+        assert all(np.array_equal(a, b) for a, b in zip(one, two, strict=True))
 
     def test_learned_k_grey_and_colour(self) -> None:
         truth = np.stack([scene(24, s) for s in range(3)])

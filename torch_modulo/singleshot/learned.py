@@ -26,6 +26,7 @@ import dataclasses
 import functools
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from torch_modulo._checks import check_flag, check_int
-from torch_modulo.singleshot.grid import components, path_to_root
+from torch_modulo.singleshot.grid import grid_components, path_to_root
 
 __all__ = [
     "BAND",
@@ -202,7 +203,8 @@ class EdgeJumpNet(nn.Module):
         head is a 1 x 1 convolution, so a window of features gives the same window of logits)."""
         b, _, h, w = features.shape
         n = channels * 2 * (2 * self.max_jump + 1)  # the head's outputs are channel-major: the first n
-        out = F.conv2d(features, self.head.weight[:n], self.head.bias[:n])
+        # channels first (the reductions over jumps that follow are faster so): see _cpu_layout
+        out = F.conv2d(features.contiguous(), self.head.weight[:n], self.head.bias[:n])
         return out.view(b, channels, 2, 2 * self.max_jump + 1, h, w)
 
 
@@ -217,7 +219,19 @@ def _load_cached(path: str, device: str) -> EdgeJumpNet:
             f"{path!r} is not a weights file of the training recipe ({{'config': ..., 'state': ...}} for "
             f"EdgeJumpNet): {type(error).__name__}: {error}"
         ) from error
-    return net.eval().to(device)  # one cached copy per device: moving a shared copy would move it for every caller
+    # one cached copy per device: moving a shared copy would move it for every caller
+    return _cpu_layout(net.eval().to(device))
+
+
+def _cpu_layout(net: nn.Module) -> nn.Module:
+    """``net`` with its 3 x 3 convolutions' weights channels last when it is on the CPU (their outputs follow): oneDNN
+    runs those faster. The 1 x 1 heads stay channels first, with their input made so, as the reductions over jumps
+    and levels after them are faster on channels-first logits. The results are the same up to float rounding."""
+    if next(net.parameters()).device.type == "cpu":
+        for module in net.modules():
+            if isinstance(module, nn.Conv2d) and module.kernel_size != (1, 1):
+                module.to(memory_format=torch.channels_last)
+    return net
 
 
 def load_model(path: str | Path | None = None, device: torch.device | str = "cpu") -> EdgeJumpNet:
@@ -685,15 +699,10 @@ def refine_band(
         return _pair_costs(m, kk, table, first, period, shift_a, shift_b)
 
     same = costs(k)
-    ids = np.arange(h * w, dtype=np.int64).reshape(h, w)
     rows, cols = np.arange(h)[:, None] // block, np.arange(w)[None, :] // block
     square = rows * (-(-w // block)) + cols
     joined = [(c < _SURE) & (square[a] == square[b]) for (a, b), c in zip(_DIRECTIONS, same, strict=True)]
-    n, labels = components(
-        h * w,
-        np.concatenate([ids[a][j] for (a, _), j in zip(_DIRECTIONS, joined, strict=True)]),
-        np.concatenate([ids[b][j] for (_, b), j in zip(_DIRECTIONS, joined, strict=True)]),
-    )
+    n, labels = grid_components(*joined)
     labels = labels.reshape(h, w)
     # Pairs inside a superpixel keep their jump under every move: only the pairs between superpixels enter a graph.
     ends = [(labels[a][x], labels[b][x], x) for (a, b) in _DIRECTIONS for x in [labels[a] != labels[b]]]
@@ -777,13 +786,23 @@ def learned_k(
             u = predict_levels(levels, x.to(device=level_device, dtype=torch.float32), bits, tile)
     if levels is not None:
         from torch_modulo.singleshot.levels import region_moves
-    for i in range(x.shape[0]):  # one channel's int64 moduli at a time
+
+    def decode(i: int) -> None:  # one channel, from its int64 moduli
         plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
         k[i], confidence[i] = decode_jumps(plane, jump[i], cost[i, :, band] if band else cost[i], bits)
         if max_cuts:
             k[i] = refine_band(plane, k[i], cost[i], jump[i].astype(np.int64) - band, bits, max_cuts)
         if levels is not None:  # last: the cuts weigh the pairs alone and would undo what the levels moved
             k[i] = region_moves(plane, k[i], cost[i], jump[i].astype(np.int64) - band, u[i], bits)
+
+    # The channels are decoded side by side on torch's threads: numpy and scipy let go of the GIL for most of the work.
+    threads = min(torch.get_num_threads(), x.shape[0])
+    if threads > 1:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(decode, range(x.shape[0])))  # raises what a channel raised
+    else:
+        for i in range(x.shape[0]):
+            decode(i)
     return k, confidence
 
 

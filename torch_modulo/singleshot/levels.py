@@ -29,13 +29,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from torch_modulo.singleshot.grid import components
+from torch_modulo.singleshot.grid import grid_components
 from torch_modulo.singleshot.learned import (
     _DIRECTIONS,
     _MAX_COST,
     SLOTS,
     TILE,
     EdgeJumpNet,
+    _cpu_layout,
     edge_features,
     tile_margin,
     weights_path,
@@ -101,7 +102,8 @@ class LevelHead(nn.Module):
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         b, _, h, w = features.shape
-        return self.net(features).view(b, SLOTS, self.levels, h, w)
+        hidden = self.net[:-1](features).contiguous()  # channels first for the 1 x 1 convolution (learned._cpu_layout)
+        return self.net[-1](hidden).view(b, SLOTS, self.levels, h, w)
 
 
 class LevelNet(nn.Module):
@@ -155,7 +157,7 @@ def _load_cached(path: str, device: str) -> LevelNet:
             f"{path!r} is not a level weights file ({{'config': ..., 'state': ..., 'head': ...}} as "
             f"research/level_shared.py exports it): {type(error).__name__}: {error}"
         ) from error
-    return net.eval().to(device)  # one cached copy per device
+    return _cpu_layout(net.eval().to(device))  # one cached copy per device
 
 
 def load_levels(path: str | Path | None = None, device: torch.device | str = "cpu") -> LevelNet:
@@ -285,14 +287,8 @@ def region_moves(
     h, w = m.shape
     levels = u.shape[0]
     first = np.asarray(first, dtype=np.int64)
-    ids = np.arange(h * w).reshape(h, w)
-    joined = [np.asarray(table[d]).min(axis=0)[a] <= sure for d, (a, _) in enumerate(_DIRECTIONS)]
-    count, flat = components(
-        h * w,
-        np.concatenate([ids[a][j] for (a, _), j in zip(_DIRECTIONS, joined, strict=True)]),
-        np.concatenate([ids[b][j] for (_, b), j in zip(_DIRECTIONS, joined, strict=True)]),
-    )
-    del ids, joined
+    joined = (np.asarray(table[d]).min(axis=0)[a] <= sure for d, (a, _) in enumerate(_DIRECTIONS))
+    count, flat = grid_components(*joined)
     labels = flat.reshape(h, w)
 
     def level_cost(kk: np.ndarray) -> np.ndarray:  # every pixel's cost at level kk (clipped to the head's levels)
@@ -310,12 +306,36 @@ def region_moves(
 
     offset = min(range(-levels, levels + 1), key=lambda g: (total(g), abs(g)))
     k = k + offset
-    # Each region's level cost at every total move t in -_REACH .. _REACH from there, less that at t = 0.
+    # Each region's level cost at a total move t in -_REACH .. _REACH from there, less that at t = 0, computed the
+    # first time the region may move to t (most regions never move; those that do, rarely far). Summed pixel by
+    # pixel in raster order, as a bincount over the whole plane would.
     base = np.bincount(flat, level_cost(k).ravel(), count)
-    level = np.empty((2 * _REACH + 1, count), dtype=np.float32)
-    for t in range(-_REACH, _REACH + 1):
-        level[t + _REACH] = weight * (np.bincount(flat, level_cost(k + t).ravel(), count) - base)
-    del base
+    level = np.zeros((2 * _REACH + 1, count), dtype=np.float32)
+    ready = np.zeros((2 * _REACH + 1, count), dtype=bool)
+    ready[_REACH] = True  # t = 0: no change
+    pixels = np.argsort(flat, kind="stable")  # region by region, each in raster order
+    starts = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=count))])
+    flat_k, flat_u = k.ravel(), u.reshape(levels, -1)
+
+    def fill(to: np.ndarray, regions: np.ndarray) -> None:
+        """Make ``level[to + _REACH, regions]`` ready where ``|to| <= _REACH`` ((S, n) totals of n regions)."""
+        if regions.size == count and not moved.any():  # the first round: whole rows, pixel by pixel
+            for t in np.unique(to[np.abs(to) <= _REACH]).tolist():
+                if not ready[t + _REACH].all():
+                    level[t + _REACH] = weight * (np.bincount(flat, level_cost(k + t).ravel(), count) - base)
+                    ready[t + _REACH] = True
+            return
+        where = (np.abs(to) <= _REACH) & ~ready[np.clip(to, -_REACH, _REACH) + _REACH, regions]
+        if not where.any():
+            return
+        t, r = to[where], np.broadcast_to(regions, to.shape)[where]
+        lengths = starts[r + 1] - starts[r]
+        local = np.repeat(np.arange(r.size), lengths)
+        pixel = pixels[np.arange(local.size) + np.repeat(starts[r] - np.cumsum(lengths) + lengths, lengths)]
+        value = flat_u[np.clip(flat_k[pixel] + t[local], 0, levels - 1), pixel]
+        level[t + _REACH, r] = weight * (np.bincount(local, value, r.size) - base[r])
+        ready[t + _REACH, r] = True
+
     # The pairs between regions (both directions): their regions, their jump now (as an index into their table)
     # and their tables.
     ends_a, ends_b, jumps, tables = [], [], [], []
@@ -358,6 +378,7 @@ def region_moves(
         """(len(shifts), len(regions)): how much the cost changes if each region moves by each shift now, from
         ``entries(regions)`` (every region when ``regions`` is all of them: then pair by pair)."""
         to = moved[regions] + shifts[:, None]
+        fill(to, regions)
         delta = np.where(np.abs(to) <= _REACH, level[np.clip(to, -_REACH, _REACH) + _REACH, regions], np.inf)
         delta -= level[moved[regions] + _REACH, regions]
         slots = np.arange(shifts.size)[:, None] * regions.size
