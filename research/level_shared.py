@@ -11,10 +11,15 @@ outputs, :meth:`~torch_modulo.singleshot.learned.EdgeJumpNet.encode`):
 - without it (:class:`SharedLevels`, not kept): its own copy of the last decoder stage (``dec1``, started from the
   shipped one) and a head at full resolution.
 
-    python -m research.level_shared train --half --head-width 32 --steps 12000 --seed 54 --out half.pt  # ~22 min
+    python -m research.level_shared train --half --head-width 32 --steps 12000 --seed 54 --out half.pt --card half.md
     python -m research.level_shared export --weights half.pt --out torch_modulo/singleshot/weights/levels.pt
     python -m research.level_shared eval --weights half.pt --split train    # vs the tree, and timing
     python -m research.level_shared train --steps 4000 --out shared.pt       # the variant not kept, ~17 min
+
+``train`` writes the weights, a summary of the run beside them (``half.json``: settings, minutes, final loss, the
+scenes it read) and, with ``--card``, a model card (data, settings, and the numbers of ``eval`` on the training and
+validation scenes; ``card`` writes one for any record). The run of the shipped weights took about 22 minutes on 2
+cores, the card about 5 more.
 
 Evaluation decodes as the package does (the shipped tree, then :func:`torch_modulo.singleshot.levels.region_moves`)
 and prints exact-k / rolled-over right (%) per protocol, and the seconds per megapixel of the level prediction.
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import json
 import time
 from pathlib import Path
 
@@ -34,12 +40,27 @@ from torch import nn
 
 from research.level_head import Progress, cosine, recipe_batches
 from torch_modulo import protocols
-from torch_modulo.singleshot.learned import BAND, EdgeJumpNet, decode_jumps, edge_features, load_model, predict_jumps
+from torch_modulo.singleshot.learned import (
+    BAND,
+    SLOTS,
+    EdgeJumpNet,
+    decode_jumps,
+    edge_features,
+    load_model,
+    predict_jumps,
+)
 from torch_modulo.singleshot.levels import LEVELS, LevelHead, region_moves
 
 BITS = 8
 PERIOD = 1 << BITS
 ROOT = Path(__file__).resolve().parents[1]
+
+#: What a training batch is (research/level_head.py's recipe_batches), for the model card.
+RECIPE = (
+    "references/learned_single/train.py's batches of 6 crops of 128 x 128, luminance or RGB, the brightest region "
+    "rolled over 2 to 20 times, half the scene crops exposed by their whole scene's percentile, 30% procedural, "
+    "15% with shot and read noise; labels: every pixel's level floor(counts / 256), clipped to 0 .. 15"
+)
 
 
 class SharedLevels(nn.Module):
@@ -74,7 +95,14 @@ class HalfLevels(nn.Module):
 
 
 def load(path: Path, edge: EdgeJumpNet) -> nn.Module:
+    """A ``train`` record, or a package level weights file (``export``'s output, whose trunk is ``edge``), as the
+    research network."""
     record = torch.load(path, map_location="cpu", weights_only=True)
+    if "head" in record:  # the package's format: a half-resolution head
+        head = {k: v.float() for k, v in record["head"].items()}
+        net = HalfLevels(edge, int(head["net.0.bias"].numel()), int(head["net.6.bias"].numel()) // SLOTS)
+        net.head.load_state_dict(head)
+        return net.eval()
     kind = HalfLevels if record.get("half") else SharedLevels
     net = kind(edge, record["head_width"], record["levels"])
     net.load_state_dict({k: v.float() for k, v in record["state"].items()})
@@ -119,42 +147,129 @@ def train(args: argparse.Namespace) -> None:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     torch.save(record, args.out)
+    summary = {
+        "weights": args.out.name,
+        "minutes": round((time.perf_counter() - progress.start) / 60, 1),
+        "head_parameters": sum(p.numel() for p in net.parameters()),
+        "final_loss": progress.smooth,
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "func"},
+        "recipe": RECIPE,
+        "scenes": [
+            str(p.relative_to(protocols.DEV_SCENES)) for p in protocols.list_scenes(protocols.DEV_SCENES, "train")
+        ],
+    }
+    summary_path(args.out).write_text(json.dumps(summary, indent=2) + "\n")
+    if args.card is not None:
+        write_card(argparse.Namespace(weights=args.out, out=args.card, splits=["train", "validation"], data=None))
+
+
+def scores(edge: EdgeJumpNet, net: nn.Module, scenes: list[Path], proto: str) -> tuple[np.ndarray, float]:
+    """Mean exact-k / rolled-over right (%) of the tree and of the region moves over ``scenes`` under ``proto`` (four
+    values), and the level prediction's seconds per megapixel and channel."""
+    rows, seconds, pixels = [], 0.0, 0
+    for path in scenes:
+        truth = protocols.protocol_counts(protocols.load_scene(path, 512), proto)
+        moduli = torch.remainder(truth, PERIOD).to(torch.int64)
+        planes = moduli.numpy()
+        jump, cost = predict_jumps(edge, moduli.float(), BITS, band=BAND)
+        start = time.perf_counter()
+        u = level_costs(edge, net, moduli)
+        seconds += time.perf_counter() - start
+        pixels += planes.size
+        row = []
+        for c in range(planes.shape[0]):
+            tree = decode_jumps(planes[c], jump[c], cost[c, :, BAND], BITS)[0]
+            moved = region_moves(planes[c], tree, cost[c], jump[c].astype(np.int64) - BAND, u[c], BITS)
+            row.append((tree, moved))
+        out = []
+        for i in range(2):
+            k = np.stack([r[i] for r in row])
+            score = protocols.score_scene(torch.from_numpy(planes + PERIOD * k).double(), truth.double(), BITS)
+            out += [score.exact_k, score.rolled_over_right]
+        rows.append(out)
+    return 100 * np.nanmean(np.array(rows), axis=0), seconds / pixels * 1e6
+
+
+def scene_list(split: str, data: Path | None) -> list[Path]:
+    """The dev scenes of ``split``, or every scene of another folder ``data``."""
+    return (
+        protocols.list_scenes(data, "all") if data is not None else protocols.list_scenes(protocols.DEV_SCENES, split)
+    )
 
 
 def evaluate(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     edge = load_model()
     net = load(args.weights, edge)
-    folder = args.data or protocols.DEV_SCENES
-    scenes = protocols.list_scenes(folder, split=args.split if args.data is None else "all")
+    scenes = scene_list(args.split, args.data)
     for proto in args.protocols:
-        rows, seconds, pixels = [], 0.0, 0
-        for path in scenes:
-            truth = protocols.protocol_counts(protocols.load_scene(path, 512), proto)
-            moduli = torch.remainder(truth, PERIOD).to(torch.int64)
-            planes = moduli.numpy()
-            jump, cost = predict_jumps(edge, moduli.float(), BITS, band=BAND)
-            start = time.perf_counter()
-            u = level_costs(edge, net, moduli)
-            seconds += time.perf_counter() - start
-            pixels += planes.size
-            row = []
-            for c in range(planes.shape[0]):
-                tree = decode_jumps(planes[c], jump[c], cost[c, :, BAND], BITS)[0]
-                moved = region_moves(planes[c], tree, cost[c], jump[c].astype(np.int64) - BAND, u[c], BITS)
-                row.append((tree, moved))
-            out = []
-            for i in range(2):
-                k = np.stack([r[i] for r in row])
-                score = protocols.score_scene(torch.from_numpy(planes + PERIOD * k).double(), truth.double(), BITS)
-                out += [score.exact_k, score.rolled_over_right]
-            rows.append(out)
-        mean = 100 * np.nanmean(np.array(rows), axis=0)
+        mean, speed = scores(edge, net, scenes, proto)
         print(
             f"{proto} ({len(scenes)} scenes) tree {mean[0]:.2f} / {mean[1]:.2f} | moves {mean[2]:.2f} / {mean[3]:.2f}"
-            f" | levels {seconds / pixels * 1e6:.3f} s/MP/ch (whole image, not the package's strips)",
+            f" | levels {speed:.3f} s/MP/ch (whole image, not the package's strips)",
             flush=True,
         )
+
+
+def summary_path(weights: Path) -> Path:
+    """Where ``train`` writes the summary of the run that made ``weights``: beside it, ``.json`` for ``.pt``."""
+    return weights.with_suffix(".json")
+
+
+def write_card(args: argparse.Namespace) -> None:
+    """A model card (markdown) of a ``train`` record: its data and settings (from its summary), and exact-k /
+    rolled-over right of the shipped tree and of the region moves with its levels on ``args.splits`` (and on every
+    scene of ``args.data``)."""
+    summary_file = summary_path(args.weights)
+    summary = json.loads(summary_file.read_text()) if summary_file.exists() else None
+    edge = load_model()
+    net = load(args.weights, edge)
+    lines = [
+        f'# Model card: `{args.weights.name}` (a level head for `unwrap_single(method="learned", levels=...)`)',
+        "",
+    ]
+    if summary is None:
+        lines += [f"No summary of the run beside the weights (`{summary_file.name}`): data and settings unknown.", ""]
+    else:
+        settings = summary["settings"]
+        lines += [
+            "## Data",
+            "",
+            f"Crops of the {len(summary['scenes'])} CC0/BSD scenes of the training split and procedural scenes, as "
+            f"the recipe makes them: {summary['recipe']}. The validation scenes are never read in training.",
+            "",
+            "Scenes: " + ", ".join(f"`{name}`" for name in summary["scenes"]) + ".",
+            "",
+            "## Settings",
+            "",
+            f"`python -m research.level_shared train {'--half ' if settings.get('half') else ''}--head-width "
+            f"{settings['head_width']} --steps {settings['steps']} --lr {settings['lr']} --seed {settings['seed']}` "
+            f"({summary['minutes']} minutes, {settings['threads']} threads; {summary['head_parameters']} trained "
+            f"parameters; final smoothed loss {summary['final_loss']:.4f}). The trunk is the shipped edge network, "
+            "frozen.",
+            "",
+        ]
+    lines += [
+        "## Numbers",
+        "",
+        "Exact-k / rolled-over right (%), longer side 512, each plane aligned by its most common offset; the shipped "
+        "edge network's tree, then `region_moves` with these levels (`python -m research.level_shared eval`).",
+        "",
+        "| scenes | protocol | tree | with the level moves |",
+        "|---|---|---|---|",
+    ]
+    groups = [(split, scene_list(split, None)) for split in args.splits]
+    if args.data is not None:
+        groups.append((f"every scene of `{args.data.name}`", scene_list("all", args.data)))
+    for name, scenes in groups:
+        for proto in ("A", "A10", "B"):
+            mean, _ = scores(edge, net, scenes, proto)
+            lines.append(
+                f"| {name} ({len(scenes)}) | {proto} | {mean[0]:.2f} / {mean[1]:.2f} | {mean[2]:.2f} / {mean[3]:.2f} |"
+            )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {args.out}", flush=True)
 
 
 def export(args: argparse.Namespace) -> None:
@@ -180,6 +295,7 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--seed", type=int, default=53)
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--out", type=Path, required=True)
+    t.add_argument("--card", type=Path, default=None, help="then write a model card here (evaluates: minutes)")
     e = sub.add_parser("eval", help="the shipped tree vs the region moves on the scenes")
     e.add_argument("--weights", type=Path, required=True)
     e.add_argument("--split", default="train", choices=protocols.SPLITS)
@@ -189,8 +305,13 @@ def main(argv: list[str] | None = None) -> None:
     x = sub.add_parser("export", help="a --half record as torch_modulo/singleshot/weights/levels.pt")
     x.add_argument("--weights", type=Path, required=True)
     x.add_argument("--out", type=Path, required=True)
+    c = sub.add_parser("card", help="a model card of a train record: data, settings and numbers")
+    c.add_argument("--weights", type=Path, required=True)
+    c.add_argument("--out", type=Path, required=True)
+    c.add_argument("--splits", nargs="+", default=["train", "validation"], choices=protocols.SPLITS)
+    c.add_argument("--data", type=Path, default=None, help="also every scene of another folder")
     args = ap.parse_args(argv)
-    {"train": train, "eval": evaluate, "export": export}[args.command](args)
+    {"train": train, "eval": evaluate, "export": export, "card": write_card}[args.command](args)
 
 
 if __name__ == "__main__":

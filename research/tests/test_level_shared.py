@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from research import level_shared
-from torch_modulo.singleshot.learned import load_model
-from torch_modulo.singleshot.levels import load_levels, predict_levels
+from torch_modulo.singleshot.learned import load_model, weights_path
+from torch_modulo.singleshot.levels import LEVEL_WEIGHTS, load_levels, predict_levels
 
 
 def test_half_head_shapes() -> None:
@@ -31,3 +33,34 @@ def test_export_loads_in_the_package(tmp_path) -> None:
     research = level_shared.level_costs(edge, level_shared.load(tmp_path / "half.pt", edge), moduli)
     package = predict_levels(load_levels(tmp_path / "levels.pt"), moduli, 8)
     assert np.allclose(research.astype(np.float32), package.astype(np.float32), atol=1e-2)
+
+
+def test_train_writes_weights_summary_and_card(tmp_path, monkeypatch) -> None:
+    from torch_modulo.io import write_image
+
+    counts = torch.arange(16 * 24, dtype=torch.float32).reshape(1, 1, 16, 24).expand(2, 3, 16, 24) * 5
+    monkeypatch.setattr(level_shared, "recipe_batches", lambda args: lambda: (torch.remainder(counts, 256), counts))
+    y, x = torch.meshgrid(torch.linspace(0, 1, 24), torch.linspace(0, 1, 32), indexing="ij")
+    write_image(tmp_path / "ramp.exr", torch.stack([1 + 30 * x * y, 1 + 20 * x, 1 + 10 * y]))
+    monkeypatch.setattr(level_shared, "scene_list", lambda split, data: [tmp_path / "ramp.exr"])
+    out, card = tmp_path / "run" / "half.pt", tmp_path / "half.md"
+    level_shared.main(["train", "--half", "--steps", "2", "--seed", "3", "--threads", "1", "--out", str(out)])
+    assert level_shared.load(out, load_model()).head.levels == level_shared.LEVELS
+    summary = json.loads((tmp_path / "run" / "half.json").read_text())
+    assert summary["settings"]["steps"] == 2 and summary["settings"]["seed"] == 3 and summary["minutes"] >= 0
+    level_shared.main(["card", "--weights", str(out), "--out", str(card), "--splits", "validation"])
+    text = card.read_text()
+    assert "--half --head-width 24 --steps 2 --lr 0.002 --seed 3" in text
+    rows = [line for line in text.splitlines() if line.startswith("| validation (1) |")]
+    assert [row.split(" | ")[1] for row in rows] == ["A", "A10", "B"]  # one row per protocol, with its numbers
+    assert all(len(row.split(" / ")) == 3 for row in rows)
+
+
+def test_load_reads_the_package_format(tmp_path) -> None:
+    edge = load_model()
+    net = level_shared.load(Path(weights_path(None, LEVEL_WEIGHTS)), edge)  # the shipped levels.pt
+    moduli = torch.randint(0, 256, (1, 40, 52), generator=torch.Generator().manual_seed(2))
+    research = level_shared.level_costs(edge, net, moduli)
+    assert np.allclose(
+        research.astype(np.float32), predict_levels(load_levels(), moduli, 8).astype(np.float32), atol=1e-2
+    )
