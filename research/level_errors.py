@@ -1,0 +1,168 @@
+"""Where the level moves stop, and why: the errors of ``unwrap_single(method="learned")`` against its own energy.
+
+The default decodes the shipped networks' outputs by the tree, then :func:`~torch_modulo.singleshot.levels.region_moves`
+over the regions joined by pairs the edge network is sure of. This asks, per split and protocol, what is left:
+
+- **oracle**: every region (joined by pairs of cost ``<= tau``) put at its best level, the most common ``k_true - k``
+  of its pixels (``research/learned_regions.py`` does it for large regions only): how much a perfect decision over
+  these regions could give;
+- **energy**: the cost ``region_moves`` lowers (level costs ``-log p(k)`` plus every pair's cost of its jump, the
+  band's ``_MAX_COST`` outside it), of the truth (aligned to the result's offset) against the result's: where the
+  truth costs more, no search over this energy finds it;
+- **head on errors**: how often the level head's most likely level is the true one on the values the result gets
+  wrong, and how often overall;
+- **isolated**: the share of the wrong values with at most one wrong 4-neighbour (single-pixel noise) against
+  errors in clusters;
+- **large wrong regions**: for every region of at least 0.1% of a plane that the result puts at another level than
+  the oracle, the change of the level costs and of the pair costs when that region alone moves to the oracle's
+  level; the share of their pixels where both, one or none favour the truth.
+
+    python -m research.level_errors --split train            # the 26 training scenes, protocols A, A10 and B
+    python -m research.level_errors --split validation --protocols A
+
+Each plane's scores are aligned by its most common offset, as ``protocols.score_scene`` does; means over scenes.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+from torch_modulo import protocols
+from torch_modulo.singleshot.grid import grid_components
+from torch_modulo.singleshot.learned import _DIRECTIONS, _MAX_COST, BAND, decode_jumps, load_model, predict_jumps
+from torch_modulo.singleshot.levels import load_levels, region_moves
+
+BITS = 8
+PERIOD = 1 << BITS
+
+
+def offset(d: np.ndarray) -> int:
+    """The most common value of an integer array (the alignment of the scores)."""
+    values, counts = np.unique(d, return_counts=True)
+    return int(values[counts.argmax()])
+
+
+def regions(table: np.ndarray, tau: float) -> tuple[int, np.ndarray]:
+    """The regions joined by pairs whose least cost in ``table`` ((2, K, H, W)) is at most ``tau``: count, (H, W)."""
+    count, flat = grid_components(*(table[d].min(axis=0)[a] <= tau for d, (a, _) in enumerate(_DIRECTIONS)))
+    return count, flat.reshape(table.shape[-2:])
+
+
+def oracle(k: np.ndarray, true_k: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """``k`` with every region moved by the most common ``true_k - k`` of its pixels."""
+    d = (true_k - k).ravel()
+    lo, span = d.min(), d.max() - d.min() + 1
+    key = labels.ravel().astype(np.int64) * span + (d - lo)
+    pairs, n = np.unique(key, return_counts=True)
+    region, value = pairs // span, pairs % span + lo
+    order = np.lexsort((-n, region))
+    first = np.r_[True, region[order][1:] != region[order][:-1]]
+    shift = np.zeros(count, dtype=np.int64)
+    shift[region[order][first]] = value[order][first]
+    return k + shift[labels]
+
+
+def energy(m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, u: np.ndarray) -> tuple[float, float]:
+    """``region_moves``' cost of ``k`` (weight 1): the level costs' sum and the pairs' sum."""
+    levels = u.shape[0]
+    level = float(np.take_along_axis(u, np.clip(k, 0, levels - 1)[None], 0).astype(np.float64).sum())
+    pair = 0.0
+    for d, (a, b) in enumerate(_DIRECTIONS):
+        wd = np.mod(m[b] - m[a] + PERIOD // 2, PERIOD) - PERIOD // 2
+        n = (m[b] + PERIOD * k[b] - m[a] - PERIOD * k[a] - wd) // PERIOD - first[d][a]
+        t = np.clip(table[d][(slice(None), *a)], 0.0, _MAX_COST).astype(np.float64)
+        inside = (n >= 0) & (n < t.shape[0])
+        pair += float(
+            np.where(inside, np.take_along_axis(t, np.clip(n, 0, t.shape[0] - 1)[None], 0)[0], _MAX_COST).sum()
+        )
+    return level, pair
+
+
+def plane_report(
+    m: np.ndarray, tree: np.ndarray, table: np.ndarray, first: np.ndarray, u: np.ndarray, truth: np.ndarray
+):
+    """The numbers of one plane (a dict of sums and counts)."""
+    true_k = truth // PERIOD
+    moved = region_moves(m, tree, table, first, u, BITS)
+    wrong = (moved - true_k) != offset(moved - true_k)
+    out = {"values": m.size, "wrong": int(wrong.sum())}
+    for tau in (0.01, 0.1, 0.5):
+        count, labels = regions(table, tau)
+        k = oracle(moved, true_k, labels, count)
+        out[f"oracle {tau:g}"] = int(((k - true_k) == offset(k - true_k)).sum())
+    aligned = true_k + offset(moved - true_k)  # the truth at the result's offset
+    e_moved, e_true = energy(m, moved, table, first, u), energy(m, aligned, table, first, u)
+    out["truth costs more"] = int(sum(e_true) > sum(e_moved))
+    out["truth's level costs more"] = int(e_true[0] > e_moved[0])
+    head = u.argmin(axis=0)
+    out["head right"] = int((head == np.clip(true_k, 0, u.shape[0] - 1)).sum())
+    out["head right on wrong"] = int((head == np.clip(true_k, 0, u.shape[0] - 1))[wrong].sum())
+    neighbours = ndimage.convolve(wrong.astype(np.int64), np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]]), mode="constant")
+    out["isolated"] = int((wrong & (neighbours <= 1)).sum())
+    count, labels = regions(table, 0.01)
+    best = oracle(moved, aligned, labels, count)
+    size = np.bincount(labels.ravel(), minlength=count)
+    large = np.unique(labels[best != moved])
+    for r in large[size[large] >= 0.001 * m.size]:
+        trial = moved.copy()
+        inside = labels == r
+        trial[inside] = best[inside]
+        e = energy(m, trial, table, first, u)
+        key = ("both favour", "level favours", "pairs favour", "neither favours")[
+            2 * (e[0] >= e_moved[0]) + (e[1] >= e_moved[1])
+        ]
+        out[f"large: {key}"] = out.get(f"large: {key}", 0) + int(inside.sum())
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--split", default="train", choices=protocols.SPLITS)
+    ap.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    net, levels = load_model(), load_levels()
+    scenes = protocols.list_scenes(protocols.DEV_SCENES, args.split)
+    for proto in args.protocols:
+        per_scene, totals = [], defaultdict(int)
+        for path in scenes:
+            truth = protocols.protocol_counts(protocols.load_scene(path, 512), proto).to(torch.int64)
+            moduli = torch.remainder(truth, PERIOD)
+            jump, cost, u = predict_jumps(net, moduli.float(), BITS, band=BAND, levels=levels)
+            scene = defaultdict(int)
+            for c in range(moduli.shape[0]):
+                m, t = moduli[c].numpy(), truth[c].numpy()
+                tree = decode_jumps(m, jump[c], cost[c, :, BAND], BITS)[0]
+                for key, value in plane_report(m, tree, cost[c], jump[c].astype(np.int64) - BAND, u[c], t).items():
+                    scene[key] += value
+            scene["planes"] = moduli.shape[0]
+            per_scene.append(scene)
+            for key, value in scene.items():
+                totals[key] += value
+        mean = {key: np.mean([s.get(key, 0) / s["values"] for s in per_scene]) for key in totals}
+        right = 100 * (1 - mean["wrong"])
+        oracles = ", ".join(f"tau {key.split()[1]} {100 * mean[key]:.2f}" for key in totals if key.startswith("oracle"))
+        large = sum(totals[k] for k in totals if k.startswith("large"))
+        shares = ", ".join(
+            f"{k.removeprefix('large: ')} {totals[k] / large:.2f}" for k in sorted(totals) if k.startswith("large")
+        )
+        level_more = totals["truth's level costs more"]
+        print(
+            f"{proto} ({len(scenes)} scenes): exact-k {right:.2f}, region oracle {oracles} | the truth costs more than "
+            f"the result on {totals['truth costs more']} of {totals['planes']} planes (its level costs: "
+            f"{level_more}) | head right on {100 * totals['head right'] / totals['values']:.1f}% "
+            f"of the values, on {100 * totals['head right on wrong'] / max(totals['wrong'], 1):.1f}% of the wrong ones"
+            f" | isolated errors {totals['isolated'] / max(totals['wrong'], 1):.2f} | wrong large regions "
+            f"{large / max(totals['wrong'], 1):.2f} of the wrong values: {shares or 'none'}",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,46 @@
+"""Unit tests of research/level_errors.py on small synthetic planes (no scene files needed)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from research import level_errors
+from torch_modulo.singleshot.levels import LEVELS
+
+
+def _halves() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A plane whose right half is a period above its left, sure pairs inside the halves and unsure ones across:
+    (moduli, true counts, table (2, 5, H, W), first jumps, level costs leaning to the truth)."""
+    truth = np.full((6, 8), 100, dtype=np.int64)
+    truth[:, 4:] += 256 + 30
+    m = truth % 256
+    table = np.full((2, 5, 6, 8), 30.0)
+    table[:, 2] = 0.0  # sure of the wrapped step (jump 0) ...
+    table[0, :, :, 3] = 1.6  # ... but across the border, where every jump of the band costs the same
+    first = np.full((2, 6, 8), -2)
+    u = np.full((LEVELS, 6, 8), 4.0, dtype=np.float16)
+    np.put_along_axis(u, (truth // 256)[None], 0.5, axis=0)
+    return m, truth, table, first, u
+
+
+def test_oracle_puts_every_region_at_its_most_common_level() -> None:
+    m, truth, table, first, u = _halves()
+    count, labels = level_errors.regions(table, 0.01)
+    assert count == 2
+    k = level_errors.oracle(np.zeros_like(m), truth // 256, labels, count)
+    assert np.array_equal(k, truth // 256)
+
+
+def test_energy_counts_levels_and_pairs() -> None:
+    m, truth, table, first, u = _halves()
+    level, pair = level_errors.energy(m, truth // 256, table, first, u)
+    assert level == 0.5 * m.size and pair == 1.6 * 6  # the border's six pairs, at a jump of the band
+    level0, pair0 = level_errors.energy(m, np.zeros_like(m), table, first, u)
+    assert level0 == 0.5 * 24 + 4.0 * 24 and pair0 == 1.6 * 6
+
+
+def test_plane_report_of_a_plane_the_moves_get_right() -> None:
+    m, truth, table, first, u = _halves()
+    out = level_errors.plane_report(m, np.zeros_like(m), table, first, u, truth)
+    assert out["values"] == m.size and out["wrong"] == 0  # the level costs move the right half up
+    assert out["oracle 0.01"] == m.size and out["head right"] == m.size and out["truth costs more"] == 0
