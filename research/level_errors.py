@@ -86,9 +86,9 @@ def energy(m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, u
 def plane_report(
     m: np.ndarray, tree: np.ndarray, table: np.ndarray, first: np.ndarray, u: np.ndarray, truth: np.ndarray
 ):
-    """The numbers of one plane (a dict of sums and counts)."""
+    """The numbers of one plane (a dict of sums and counts); ``u``: (L, H, W) level costs, one per pixel."""
     true_k = truth // PERIOD
-    moved = region_moves(m, tree, table, first, u, BITS)
+    moved = region_moves(m, tree, table, first, u, BITS, block=1)
     wrong = (moved - true_k) != offset(moved - true_k)
     out = {"values": m.size, "wrong": int(wrong.sum())}
     for tau in (0.01, 0.1, 0.5):
@@ -138,8 +138,9 @@ def main(argv: list[str] | None = None) -> None:
             scene = defaultdict(int)
             for c in range(moduli.shape[0]):
                 m, t = moduli[c].numpy(), truth[c].numpy()
+                pixels = u[c].repeat(2, axis=1).repeat(2, axis=2)[:, : m.shape[0], : m.shape[1]]  # a cost per pixel
                 tree = decode_jumps(m, jump[c], cost[c, :, BAND], BITS)[0]
-                for key, value in plane_report(m, tree, cost[c], jump[c].astype(np.int64) - BAND, u[c], t).items():
+                for key, value in plane_report(m, tree, cost[c], jump[c].astype(np.int64) - BAND, pixels, t).items():
                     scene[key] += value
             scene["planes"] = moduli.shape[0]
             per_scene.append(scene)

@@ -111,7 +111,7 @@ def load(path: Path, edge: EdgeJumpNet) -> nn.Module:
 
 @torch.no_grad()
 def level_costs(edge: EdgeJumpNet, net: nn.Module, moduli: torch.Tensor) -> np.ndarray:
-    """(C, LEVELS, H, W) float16 costs of (C, H, W) moduli (whole image at once; research only)."""
+    """(C, LEVELS, H, W) float16 costs of (C, H, W) moduli, one per pixel (whole image at once; research only)."""
     c, h, w = moduli.shape
     x = moduli[None].float().expand(1, 3, h, w)
     x = F.pad(x, (0, (-w) % edge.stride, 0, (-h) % edge.stride), mode="replicate")
@@ -179,7 +179,7 @@ def scores(edge: EdgeJumpNet, net: nn.Module, scenes: list[Path], proto: str) ->
         row = []
         for c in range(planes.shape[0]):
             tree = decode_jumps(planes[c], jump[c], cost[c, :, BAND], BITS)[0]
-            moved = region_moves(planes[c], tree, cost[c], jump[c].astype(np.int64) - BAND, u[c], BITS)
+            moved = region_moves(planes[c], tree, cost[c], jump[c].astype(np.int64) - BAND, u[c], BITS, block=1)
             row.append((tree, moved))
         out = []
         for i in range(2):

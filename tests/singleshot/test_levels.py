@@ -112,15 +112,15 @@ class TestPrediction:
         rows, cols = 163, 150  # not multiples of the pooling grid
         moduli = torch.randint(0, 256, (channels, rows, cols), generator=torch.Generator().manual_seed(1))
         whole = predict_levels(net, moduli, 8, tile=0)
-        assert whole.shape == (channels, 5, rows, cols) and whole.dtype == np.float16
+        assert whole.shape == (channels, 5, (rows + 1) // 2, cols // 2) and whole.dtype == np.float16
         planes = [moduli] if channels in (1, 3) else [moduli[i : i + 1] for i in range(channels)]
         direct = []
         for x in planes:
             padded = torch.nn.functional.pad(x.float()[None].expand(1, 3, rows, cols), (0, 2, 0, 1), mode="replicate")
             with torch.no_grad():
                 logits = net(edge_features(padded, 8))[0, : x.shape[0]]  # one per 2 x 2 block
-            cost = -torch.log_softmax(logits, dim=1).repeat_interleave(2, -2).repeat_interleave(2, -1)
-            direct.append(cost[..., :rows, :cols].numpy())
+            cost = -torch.log_softmax(logits, dim=1)
+            direct.append(cost[..., : (rows + 1) // 2, : cols // 2].numpy())
         assert np.allclose(whole, np.concatenate(direct), atol=5e-3)
         assert len(learned._tiles(cols, 40, level_margin(net), net.stride)) > 2  # really in tiles
         tiled = predict_levels(net, moduli, 8, tile=40)
@@ -140,13 +140,13 @@ class TestPrediction:
             predict_jumps(edge, moduli, 8, augment=True, levels=net)
 
     def test_no_channels(self) -> None:
-        assert predict_levels(tiny(), torch.zeros(0, 8, 8), 8).shape == (0, 5, 8, 8)
+        assert predict_levels(tiny(), torch.zeros(0, 8, 8), 8).shape == (0, 5, 4, 4)
         k, confidence = learned_k(np.zeros((0, 8, 8)), 8, levels=True)
         assert k.shape == confidence.shape == (0, 8, 8)
 
     def test_costs_are_a_distribution(self) -> None:
         costs = predict_levels(load_levels(), torch.from_numpy(lamp(32) % 256)[None], 8).astype(np.float64)
-        assert costs.shape == (1, LEVELS, 32, 32)
+        assert costs.shape == (1, LEVELS, 16, 16)
         assert np.allclose(np.exp(-costs).sum(axis=1), 1.0, atol=1e-2)
 
 
@@ -205,7 +205,7 @@ class TestRegionMoves:
         u = (3 * rng.random((LEVELS, *m.shape))).astype(np.float16)
         expected = naive_moves(m, k0, table, first, u, 0.5, 0.2)
         assert not np.array_equal(expected - expected.min(), k0 - k0.min())  # something moved
-        assert np.array_equal(region_moves(m, k0, table, first, u, 8, weight=0.5, sure=0.2), expected)
+        assert np.array_equal(region_moves(m, k0, table, first, u, 8, block=1, weight=0.5, sure=0.2), expected)
 
     def test_a_region_a_period_off_moves_back(self) -> None:
         truth = lamp(40)
@@ -222,9 +222,9 @@ class TestRegionMoves:
             table[d][(slice(None), *a)][:, true_k[a] != true_k[b]] = 2.0
         u = np.full((LEVELS, 40, 40), 4.0, dtype=np.float16)
         np.put_along_axis(u, true_k[None], 0.5, axis=0)  # the head leans to the true level
-        assert np.array_equal(region_moves(m, wrong, table, first, u, 8), true_k)
+        assert np.array_equal(region_moves(m, wrong, table, first, u, 8, block=1), true_k)
         # with no view on levels (flat costs) nothing moves: every border jump in the tables costs the same
-        assert np.array_equal(region_moves(m, wrong, table, first, np.ones_like(u), 8), wrong)
+        assert np.array_equal(region_moves(m, wrong, table, first, np.ones_like(u), 8, block=1), wrong)
 
     def test_pieces_give_the_whole(self, monkeypatch: pytest.MonkeyPatch) -> None:
         rng = np.random.default_rng(7)
@@ -233,9 +233,9 @@ class TestRegionMoves:
         table = rng.exponential(1.0, (2, 5, *m.shape))
         first = rng.integers(-3, 0, (2, *m.shape))
         u = (3 * rng.random((LEVELS, *m.shape))).astype(np.float16)
-        whole = region_moves(m, k0, table, first, u, 8, sure=0.2)
+        whole = region_moves(m, k0, table, first, u, 8, block=1, sure=0.2)
         monkeypatch.setattr(levels_module, "_CHUNK", 7)  # pieces of 7 pairs in every round
-        assert np.array_equal(region_moves(m, k0, table, first, u, 8, sure=0.2), whole)
+        assert np.array_equal(region_moves(m, k0, table, first, u, 8, block=1, sure=0.2), whole)
 
     @pytest.mark.parametrize("seed", range(4))
     def test_exact_and_never_costlier(self, seed: int) -> None:
@@ -245,7 +245,7 @@ class TestRegionMoves:
         table = rng.exponential(1.0, (2, 5, *m.shape))
         first = rng.integers(-3, 1, (2, *m.shape))
         u = rng.exponential(2.0, (LEVELS, *m.shape)).astype(np.float16)
-        k = region_moves(m, k0, table, first, u, 8, weight=0.7, sure=0.2)
+        k = region_moves(m, k0, table, first, u, 8, block=1, weight=0.7, sure=0.2)
         assert k.dtype == np.int64 and k.shape == m.shape
         assert energy(m, k, table, first, u, 0.7) < energy(m, k0, table, first, u, 0.7) - 1.0  # it did move
         # a constant per region of pairs at most `sure` costly
@@ -258,15 +258,32 @@ class TestRegionMoves:
         u = np.zeros((LEVELS, 1, 2))
         u[1:, 0, 0] = 100.0  # the left pixel is sure of level 0 ...
         u[:, 0, 1] = np.arange(LEVELS)[::-1]  # ... and the right one wants the top level, beyond the reach
-        k = region_moves(m, np.zeros((1, 2), int), table, np.zeros((2, 1, 2), int), u, 8)
+        k = region_moves(m, np.zeros((1, 2), int), table, np.zeros((2, 1, 2), int), u, 8, block=1)
         assert k.tolist() == [[0, _REACH]]
 
     def test_huge_rollover_counts(self) -> None:
         m = np.zeros((30, 30), dtype=np.int64)
         k = np.zeros((30, 30), dtype=np.int64)
         k[0, 0], k[5, 5] = 10**12, -(10**9)  # far apart, and no sure pair: 900 regions
-        out = region_moves(m, k, np.full((2, 5, 30, 30), 5.0), np.full((2, 30, 30), -2), np.zeros((LEVELS, 30, 30)), 8)
+        out = region_moves(
+            m, k, np.full((2, 5, 30, 30), 5.0), np.full((2, 30, 30), -2), np.zeros((LEVELS, 30, 30)), 8, block=1
+        )
         assert np.array_equal(out, k)  # flat level costs, unsure pairs: nothing to gain
+
+    @pytest.mark.parametrize("shape", [(20, 23), (21, 22), (1, 9)])
+    def test_block_costs_are_their_pixels_costs(self, shape: tuple[int, int]) -> None:
+        rng = np.random.default_rng(11)
+        m = rng.integers(0, 256, shape)
+        k0 = rng.integers(0, 4, shape)
+        table = rng.exponential(1.0, (2, 5, *shape))
+        first = rng.integers(-3, 1, (2, *shape))
+        blocks = rng.exponential(2.0, (LEVELS, -(-shape[0] // 2), -(-shape[1] // 2))).astype(np.float16)
+        pixels = blocks.repeat(2, axis=1).repeat(2, axis=2)[:, : shape[0], : shape[1]]
+        k = region_moves(m, k0, table, first, blocks, 8, weight=0.7, sure=0.2)
+        assert np.array_equal(k, region_moves(m, k0, table, first, pixels, 8, weight=0.7, sure=0.2, block=1))
+        assert not np.array_equal(k, k0)  # something moved
+        with pytest.raises(ValueError, match="blocks of 2"):
+            region_moves(m, k0, table, first, pixels, 8)  # per-pixel costs are not 2 x 2 blocks
 
     def test_degenerate_planes(self) -> None:
         u = np.zeros((LEVELS, 1, 1))

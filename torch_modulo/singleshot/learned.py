@@ -401,7 +401,7 @@ def _windows(
     hook = None
     margin = tile_margin(net)
     if levels is not None:  # a level head on this network's encoder: its costs of each window go into `costs`
-        from torch_modulo.singleshot.levels import level_margin, window_costs
+        from torch_modulo.singleshot.levels import block_slices, level_margin, window_costs
 
         margin = max(margin, level_margin(levels))
     c = moduli.shape[0]
@@ -409,7 +409,9 @@ def _windows(
         if levels is not None and costs is not None:
 
             def hook(features: torch.Tensor, d2: torch.Tensor, core=core, at=(ys, xs)) -> None:
-                costs[:, :, at[0], at[1]] = window_costs(levels, features, d2, c, *core).cpu().numpy()
+                costs[(slice(None), slice(None), *block_slices(*at))] = (
+                    window_costs(levels, features, d2, c, *core).cpu().numpy()
+                )
 
         for r, logp in _window_logp(net, window, bits, augment, c, core, hook):
             yield (slice(ys.start + r, ys.start + r + logp.shape[-2]), xs), logp
@@ -486,7 +488,7 @@ def predict_jumps(
         ``(jump, cost)``: int16 (C, 2, H, W) jumps ``n`` in ``[-J, J]`` (direction 0: to the right neighbour, 1: to
         the one below) and float32 costs ``>= 0``, (C, 2, H, W), or with ``band`` (C, 2, 2 band + 1, H, W) with the
         most likely jump's at index ``band`` (jumps beyond ``+-J`` cost ``30``); with ``levels``, ``(jump, cost,
-        level_costs)``, float16 (C, levels, H, W).
+        level_costs)``, float16 (C, levels, ceil(H / 2), ceil(W / 2)), one per 2 x 2 block.
     """
     c, h, w = moduli.shape
     if c not in (1, SLOTS):
@@ -494,7 +496,8 @@ def predict_jumps(
         return tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
     if levels is not None and augment:
         raise ValueError("predict_jumps shares the encoder with the levels without augment only")
-    level_costs = None if levels is None else np.empty((c, levels.head.levels, h, w), dtype=np.float16)
+    blocks = (c, 0 if levels is None else levels.head.levels, (h + 1) // 2, (w + 1) // 2)
+    level_costs = None if levels is None else np.empty(blocks, dtype=np.float16)
     jump = np.empty((c, 2, h, w), dtype=np.int16)
     cost = np.empty((c, 2, *((2 * band + 1,) if band else ()), h, w), dtype=np.float32)
     offsets = torch.arange(-band, band + 1, device=moduli.device).view(1, 1, -1, 1, 1)
@@ -749,8 +752,8 @@ def learned_k(
     ``max_cuts``, min-cut moves (:func:`refine_band`) follow the tree. With ``levels`` (a
     :class:`~torch_modulo.singleshot.levels.LevelNet`, ``True`` for the shipped one, or a level weights file), regions
     are then moved by
-    its level costs (:func:`~torch_modulo.singleshot.levels.region_moves`; ``LEVELS`` float16 costs per pixel and
-    channel are kept while the image is decoded). With either, the costs of the jumps within :data:`BAND` of each
+    its level costs (:func:`~torch_modulo.singleshot.levels.region_moves`; ``LEVELS`` float16 costs per 2 x 2 block
+    and channel are kept while the image is decoded). With either, the costs of the jumps within :data:`BAND` of each
     pair's most likely one are kept (``2 (2 BAND + 1)`` floats per pixel and channel). The confidence is that of
     the tree.
 

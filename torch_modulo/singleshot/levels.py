@@ -48,6 +48,7 @@ __all__ = [
     "LEVEL_WEIGHTS",
     "LevelHead",
     "LevelNet",
+    "block_slices",
     "level_margin",
     "load_levels",
     "predict_levels",
@@ -188,33 +189,36 @@ def level_margin(net: LevelNet) -> int:
 def window_costs(
     net: LevelNet, features: torch.Tensor, d2: torch.Tensor, channels: int, rows: slice, cols: slice
 ) -> torch.Tensor:
-    """The (channels, levels, rows, cols) costs of the core ``rows, cols`` of one window (starting at even offsets)
-    from its (1, 15, h, w) features and its trunk's ``d2`` (each 2 x 2 block's cost repeated on its four pixels)."""
-    half_rows, half_cols = slice(rows.start // 2, (rows.stop + 1) // 2), slice(cols.start // 2, (cols.stop + 1) // 2)
-    logits = net.head_logits(features, d2)[0, :channels, :, half_rows, half_cols]
-    cost = -torch.log_softmax(logits.float(), dim=1)
-    cost = cost.repeat_interleave(2, dim=-2).repeat_interleave(2, dim=-1)
-    return cost[..., : rows.stop - rows.start, : cols.stop - cols.start]
+    """The (channels, levels, ceil(rows / 2), ceil(cols / 2)) costs of the 2 x 2 blocks of the core ``rows, cols`` of
+    one window (starting at even offsets) from its (1, 15, h, w) features and its trunk's ``d2``."""
+    logits = net.head_logits(features, d2)[(0, slice(channels), slice(None), *block_slices(rows, cols))]
+    return -torch.log_softmax(logits.float(), dim=1)
+
+
+def block_slices(rows: slice, cols: slice) -> tuple[slice, slice]:
+    """The 2 x 2 blocks of the pixels ``rows, cols`` (starting at even offsets)."""
+    return slice(rows.start // 2, (rows.stop + 1) // 2), slice(cols.start // 2, (cols.stop + 1) // 2)
 
 
 @torch.no_grad()
 def _level_pieces(
     net: LevelNet, moduli: torch.Tensor, bits: int, tile: int
 ) -> Iterator[tuple[tuple[slice, slice], torch.Tensor]]:
-    """Per tile of (C, H, W) moduli (C = 1 or 3): the tile's slices and its (C, levels, h, w) costs (each 2 x 2 block's
-    cost repeated on its four pixels)."""
+    """Per tile of (C, H, W) moduli (C = 1 or 3): the slices of the tile's 2 x 2 blocks and their (C, levels, h, w)
+    costs."""
     # windows and cores start at multiples of the stride, so on the half-resolution grid too
     for window, core, at in window_grid(moduli, tile, level_margin(net), net.stride):
         features = edge_features(window, bits)
-        yield at, window_costs(net, features, net.trunk.encode(features)[1], moduli.shape[0], *core)
+        yield block_slices(*at), window_costs(net, features, net.trunk.encode(features)[1], moduli.shape[0], *core)
 
 
 def predict_levels(net: LevelNet, moduli: torch.Tensor, bits: int, tile: int = TILE) -> np.ndarray:
-    """Every pixel's cost ``-log p(k)`` of each level ``k``: float16 (C, levels, H, W) on the CPU.
+    """Every 2 x 2 block's cost ``-log p(k)`` of each level ``k``: float16 (C, levels, ceil(H / 2), ceil(W / 2)) on
+    the CPU.
 
+    The blocks start at the top left; the pixels of a block share its costs (the head predicts at half resolution).
     The network runs on the moduli's device, in tiles of ``tile`` pixels (0: the whole image) with
-    :func:`level_margin` of context; the result is the same up to float rounding. Every 2 x 2 block of pixels (from
-    the top left) shares its costs.
+    :func:`level_margin` of context; the result is the same up to float rounding.
 
     Args:
         net: the network.
@@ -224,17 +228,16 @@ def predict_levels(net: LevelNet, moduli: torch.Tensor, bits: int, tile: int = T
         tile: the side of the tiles.
 
     Example:
-        >>> costs = predict_levels(load_levels(), torch.zeros(1, 8, 8), 8)
+        >>> costs = predict_levels(load_levels(), torch.zeros(1, 8, 7), 8)
         >>> costs.shape, costs.dtype
-        ((1, 16, 8, 8), dtype('float16'))
+        ((1, 16, 4, 4), dtype('float16'))
     """
     c, h, w = moduli.shape
+    out = np.empty((c, net.head.levels, (h + 1) // 2, (w + 1) // 2), dtype=np.float16)
     if c not in (1, SLOTS):
-        out = np.empty((c, net.head.levels, h, w), dtype=np.float16)
         for i in range(c):
             out[i : i + 1] = predict_levels(net, moduli[i : i + 1], bits, tile)
         return out
-    out = np.empty((c, net.head.levels, h, w), dtype=np.float16)
     for (ys, xs), cost in _level_pieces(net, moduli, bits, tile):
         out[:, :, ys, xs] = cost.cpu().numpy()
     return out
@@ -251,6 +254,7 @@ def region_moves(
     weight: float = 1.0,
     sure: float = 0.01,
     rounds: int = 60,
+    block: int = 2,
 ) -> np.ndarray:
     """``k`` of one plane moved by the level costs: the global level, then whole regions (see the module docstring).
 
@@ -261,11 +265,13 @@ def region_moves(
             ``table[d, i]`` is the cost of the jump ``first[d] + i``; jumps outside cost 30, and costs are clipped to
             it. The regions are joined by the pairs whose least cost in the table is at most ``sure``.
         first: (2, H, W) integers: the jump of ``table``'s first entry per pair.
-        u: (L, H, W) every pixel's cost of each level (:func:`predict_levels`).
+        u: (L, ceil(H / block), ceil(W / block)) every block's cost of each level (:func:`predict_levels`: 2 x 2
+            blocks from the top left), shared by the block's pixels.
         bits: the sensor bit depth ``N``.
         weight: the weight of the level costs against the pairs'.
         sure: pairs at most this costly join a region.
         rounds: the most rounds of moves.
+        block: the side of the blocks of ``u`` (1: a cost per pixel).
 
     Returns:
         int64 (H, W): ``k`` plus an integer per region (so ``modulus + k 2^N`` stays consistent with the modulus).
@@ -274,7 +280,7 @@ def region_moves(
         >>> m = np.array([[10, 10, 10, 10]])
         >>> table = np.full((2, 3, 1, 4), 30.0); table[:, 1] = 0.0  # jumps -1, 0, 1: sure of 0 ...
         >>> table[0, :, 0, 1] = [30.0, 1.0, 2.0]  # ... but for the middle pair, which may well be 1
-        >>> u = np.full((16, 1, 4), 9.0); u[0, 0, :2] = 0.0; u[1, 0, 2:] = 0.0  # the right half is a period up
+        >>> u = np.full((16, 1, 2), 9.0); u[0, 0, 0] = 0.0; u[1, 0, 1] = 0.0  # the right block is a period up
         >>> region_moves(m, np.zeros((1, 4), int), table, np.full((2, 1, 4), -1), u, 8).tolist()
         [[0, 0, 1, 1]]
     """
@@ -291,14 +297,20 @@ def region_moves(
     count, flat = grid_components(*joined)
     labels = flat.reshape(h, w)
 
-    def level_cost(kk: np.ndarray) -> np.ndarray:  # every pixel's cost at level kk (clipped to the head's levels)
-        return np.take_along_axis(u, np.clip(kk, 0, levels - 1)[None], 0)[0]
+    if u.shape[1:] != (-(-h // block), -(-w // block)):
+        raise ValueError(f"level costs of shape {u.shape} for a {h} x {w} plane in blocks of {block}")
+    flat_u = np.ascontiguousarray(u).reshape(levels, -1)
+    of_block = ((np.arange(h) // block)[:, None] * u.shape[2] + np.arange(w) // block).ravel()  # each pixel's block
+
+    def level_cost(kk: np.ndarray, at: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """The cost of the pixels ``at`` at the levels ``kk`` (clipped to the head's), raveled."""
+        return flat_u.ravel().take(np.clip(kk, 0, levels - 1).ravel() * flat_u.shape[1] + of_block[at])
 
     # The global move: the offset the level costs prefer (ties: the smallest move), over -LEVELS .. LEVELS. The
     # costs per level of the pixels at each k give every offset's total at once; below -LEVELS and from 2 LEVELS - 1
     # on, every such offset clips k alike.
     by_k = (np.clip(k, -levels, 2 * levels - 1) + levels).ravel()
-    sums = np.stack([np.bincount(by_k, u[i].ravel(), 3 * levels) for i in range(levels)])
+    sums = np.stack([np.bincount(by_k, flat_u[i].take(of_block), 3 * levels) for i in range(levels)])
     at = np.arange(3 * levels)
 
     def total(g: int) -> float:
@@ -309,20 +321,20 @@ def region_moves(
     # Each region's level cost at a total move t in -_REACH .. _REACH from there, less that at t = 0, computed the
     # first time the region may move to t (most regions never move; those that do, rarely far). Summed pixel by
     # pixel in raster order, as a bincount over the whole plane would.
-    base = np.bincount(flat, level_cost(k).ravel(), count)
+    base = np.bincount(flat, level_cost(k), count)
     level = np.zeros((2 * _REACH + 1, count), dtype=np.float32)
     ready = np.zeros((2 * _REACH + 1, count), dtype=bool)
     ready[_REACH] = True  # t = 0: no change
     pixels = np.argsort(flat, kind="stable")  # region by region, each in raster order
     starts = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=count))])
-    flat_k, flat_u = k.ravel(), u.reshape(levels, -1)
+    flat_k = k.ravel()
 
     def fill(to: np.ndarray, regions: np.ndarray) -> None:
         """Make ``level[to + _REACH, regions]`` ready where ``|to| <= _REACH`` ((S, n) totals of n regions)."""
         if regions.size == count and not moved.any():  # the first round: whole rows, pixel by pixel
             for t in np.unique(to[np.abs(to) <= _REACH]).tolist():
                 if not ready[t + _REACH].all():
-                    level[t + _REACH] = weight * (np.bincount(flat, level_cost(k + t).ravel(), count) - base)
+                    level[t + _REACH] = weight * (np.bincount(flat, level_cost(k + t), count) - base)
                     ready[t + _REACH] = True
             return
         where = (np.abs(to) <= _REACH) & ~ready[np.clip(to, -_REACH, _REACH) + _REACH, regions]
@@ -332,7 +344,7 @@ def region_moves(
         lengths = starts[r + 1] - starts[r]
         local = np.repeat(np.arange(r.size), lengths)
         pixel = pixels[np.arange(local.size) + np.repeat(starts[r] - np.cumsum(lengths) + lengths, lengths)]
-        value = flat_u[np.clip(flat_k[pixel] + t[local], 0, levels - 1), pixel]
+        value = level_cost(flat_k[pixel] + t[local], pixel)
         level[t + _REACH, r] = weight * (np.bincount(local, value, r.size) - base[r])
         ready[t + _REACH, r] = True
 
