@@ -98,7 +98,12 @@ def load(path: Path, edge: EdgeJumpNet) -> nn.Module:
     """A ``train`` record, or a package level weights file (``export``'s output, whose trunk is ``edge``), as the
     research network."""
     record = torch.load(path, map_location="cpu", weights_only=True)
-    if "head" in record:  # the package's format: a half-resolution head
+    if "head" in record:  # the package's format: a half-resolution head on a copy of its trunk
+        trunk = edge.state_dict()
+        if record["state"].keys() != trunk.keys() or any(
+            not torch.equal(v.float(), trunk[k].half().float()) for k, v in record["state"].items()
+        ):
+            raise SystemExit(f"{path}: its trunk is not the edge network in use")
         head = {k: v.float() for k, v in record["head"].items()}
         net = HalfLevels(edge, int(head["net.0.bias"].numel()), int(head["net.6.bias"].numel()) // SLOTS)
         net.head.load_state_dict(head)
@@ -154,6 +159,7 @@ def train(args: argparse.Namespace) -> None:
         "final_loss": progress.smooth,
         "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k != "func"},
         "recipe": RECIPE,
+        # what recipe_batches read (the recipe's load_train_scenes: the training split of the dev scenes)
         "scenes": [
             str(p.relative_to(protocols.DEV_SCENES)) for p in protocols.list_scenes(protocols.DEV_SCENES, "train")
         ],
@@ -232,6 +238,7 @@ def write_card(args: argparse.Namespace) -> None:
         lines += [f"No summary of the run beside the weights (`{summary_file.name}`): data and settings unknown.", ""]
     else:
         settings = summary["settings"]
+        loss = "none" if summary["final_loss"] is None else f"{summary['final_loss']:.4f}"
         lines += [
             "## Data",
             "",
@@ -245,7 +252,7 @@ def write_card(args: argparse.Namespace) -> None:
             f"`python -m research.level_shared train {'--half ' if settings.get('half') else ''}--head-width "
             f"{settings['head_width']} --steps {settings['steps']} --lr {settings['lr']} --seed {settings['seed']}` "
             f"({summary['minutes']} minutes, {settings['threads']} threads; {summary['head_parameters']} trained "
-            f"parameters; final smoothed loss {summary['final_loss']:.4f}). The trunk is the shipped edge network, "
+            f"parameters; final smoothed loss {loss}). The trunk is the shipped edge network, "
             "frozen.",
             "",
         ]

@@ -58,7 +58,7 @@ def test_dilate_grows_by_one_neighbourhood_step() -> None:
 @pytest.mark.parametrize("shape", [(1, 1), (1, 7), (6, 1), (9, 13)])
 @pytest.mark.parametrize("share", [0.0, 0.5, 0.8, 1.0])
 def test_grid_components_are_the_components_of_the_pairs(shape: tuple[int, int], share: float) -> None:
-    rng = np.random.default_rng(len(shape) + int(10 * share))
+    rng = np.random.default_rng(sum(shape) + int(10 * share))
     h, w = shape
     right, down = rng.random((h, w - 1)) < share, rng.random((h - 1, w)) < share
     ids = np.arange(h * w).reshape(h, w)
@@ -68,6 +68,15 @@ def test_grid_components_are_the_components_of_the_pairs(shape: tuple[int, int],
     assert (count, labels.tolist()) == tuple(
         x if i == 0 else x.tolist() for i, x in enumerate(components(h * w, first, second))
     )
+
+
+def test_grid_components_of_empty_and_bad_grids() -> None:
+    count, labels = grid_components(np.zeros((0, 4), bool), np.zeros((0, 5), bool))  # 0 x 5
+    assert count == 0 and labels.shape == (0,)
+    count, labels = grid_components(np.zeros((3, 0), bool), np.zeros((2, 0), bool))  # 3 x 0
+    assert count == 0 and labels.shape == (0,)
+    with pytest.raises(ValueError, match=r"right \(3, 1\) and down \(2, 5\)"):
+        grid_components(np.ones((3, 1), bool), np.ones((2, 5), bool))
 
 
 def test_components_of_two_chains() -> None:

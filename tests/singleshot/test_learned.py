@@ -225,20 +225,38 @@ class TestDecoders:
 
     @pytest.mark.parametrize("levels", [False, True])
     def test_channels_decoded_side_by_side_as_one_by_one(self, levels: bool, monkeypatch: pytest.MonkeyPatch) -> None:
-        threads = set()
+        threads, side_by_side = set(), threading.Barrier(2, timeout=10)
 
         def decode(*args):
-            threads.add(threading.get_ident())
+            me = threading.get_ident()
+            if me not in threads and me != threading.main_thread().ident:
+                threads.add(me)
+                side_by_side.wait()  # each pool thread's first channel waits for the other's: they run at once
+            threads.add(me)
             return decode_jumps(*args)
 
         monkeypatch.setattr(learned, "decode_jumps", decode)
         moduli = (np.stack([scene(40, s) for s in range(3)]) % 256).astype(np.int64)
         one = learned_k(moduli, 8, levels=levels)  # one_thread: the channels one after the other, here
         assert threads == {threading.get_ident()}
+        threads.clear()
         torch.set_num_threads(2)  # the fixture restores the count
         two = learned_k(moduli, 8, levels=levels)
-        assert len(threads) > 1  # the pool's threads
+        assert len(threads) == 2 and threading.get_ident() not in threads
         assert all(np.array_equal(a, b) for a, b in zip(one, two, strict=True))
+
+    def test_a_channel_that_fails_fails_the_call(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        def decode(modulus, *args):
+            if modulus[0, 0] == 7:
+                raise RuntimeError("channel 7 failed")
+            return decode_jumps(modulus, *args)
+
+        monkeypatch.setattr(learned, "decode_jumps", decode)
+        moduli = np.zeros((3, 8, 8), dtype=np.int64)
+        moduli[1] = 7
+        torch.set_num_threads(2)
+        with pytest.raises(RuntimeError, match="channel 7 failed"):
+            learned_k(moduli, 8)
 
     def test_learned_k_grey_and_colour(self) -> None:
         truth = np.stack([scene(24, s) for s in range(3)])

@@ -292,8 +292,12 @@ class TestRegionMoves:
         ).shape == (1, 1)
         empty = np.zeros((0, 4))
         assert region_moves(
-            empty, empty.astype(int), np.zeros((2, 1, 0, 4)), np.zeros((2, 0, 4)), np.zeros((LEVELS, 0, 4)), 8
+            empty, empty.astype(int), np.zeros((2, 1, 0, 4)), np.zeros((2, 0, 4)), np.zeros((LEVELS, 0, 2)), 8
         ).shape == (0, 4)
+        with pytest.raises(ValueError, match="block"):
+            region_moves(
+                np.zeros((1, 1)), np.zeros((1, 1), int), np.zeros((2, 1, 1, 1)), np.zeros((2, 1, 1)), u, 8, block=0
+            )
 
 
 class TestOption:

@@ -6,7 +6,7 @@ the methods of :data:`METHODS`:
 - ``"learned"`` (default): a small network (weights shipped in the package) predicts the rollover jump of every
   neighbour pair, the channels of a colour image seen together; an exact integer decoder (most likely spanning
   tree, optionally min-cut moves) turns it into ``k`` (:mod:`torch_modulo.singleshot.learned`); a small head's
-  per-pixel level costs then move whole regions by whole periods (option ``levels``,
+  level costs (per 2 x 2 block) then move whole regions by whole periods (option ``levels``,
   :mod:`torch_modulo.singleshot.levels`). The network runs on the input's device, the decoding on the CPU.
 - ``"guided"``: reliability-guided path following (Herraez et al. 2002) without a graph cut, the channels of a
   colour image on one shared tree, so that a step that is steep in one channel is avoided in all
@@ -248,7 +248,7 @@ def unwrap_single(
             ``2**22``: larger images build their spanning tree in blocks of at most that many pixels, which needs
             less memory and gives a minimum spanning tree of the same pairs; 0: the whole image at once).
             ``"learned"``: ``weights`` (default None: the weights shipped in the package; or a weights file),
-            ``levels`` (default True: a small head's per-pixel level costs move whole regions after the tree,
+            ``levels`` (default True: a small head's level costs move whole regions after the tree,
             :mod:`torch_modulo.singleshot.levels`; a path: a level weights file; False: no level moves, faster;
             docs/singleshot.md has the numbers), ``max_cuts`` (default 0, 4 on a mosaic: the most likely tree
             alone; more: binary moves weighing every pair's probability after it, before the level moves),

@@ -140,7 +140,10 @@ def grid_components(right: np.ndarray, down: np.ndarray) -> tuple[int, np.ndarra
     by ``scipy.ndimage.label``.
 
     Returns:
-        ``(count, labels)``: the number of components and the (H W,) int component of every pixel.
+        ``(count, labels)``: the number of components and the (H W,) int32 component of every pixel.
+
+    Raises:
+        ValueError: the shapes of ``right`` and ``down`` are not those of one grid's pairs.
 
     Example:
         >>> count, labels = grid_components(np.array([[True, False]]), np.zeros((0, 3), bool))
@@ -149,7 +152,12 @@ def grid_components(right: np.ndarray, down: np.ndarray) -> tuple[int, np.ndarra
     """
     from scipy import ndimage
 
+    right, down = np.asarray(right, dtype=bool), np.asarray(down, dtype=bool)
     h, w = right.shape[0], down.shape[1]
+    if right.shape != (h, max(w - 1, 0)) or down.shape != (max(h - 1, 0), w):
+        raise ValueError(f"right {right.shape} and down {down.shape} are not the pairs of one pixel grid")
+    if h * w == 0:
+        return 0, np.zeros(0, dtype=np.int32)
     cells = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool)
     cells[::2, ::2] = True
     cells[::2, 1::2] = right

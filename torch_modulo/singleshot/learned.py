@@ -11,8 +11,8 @@ path following assumes).
 Decoding is exact and integer (:func:`decode_edges`): every pair gets its most likely jump and that jump's
 probability; the maximum-likelihood spanning tree (Kruskal over ``-log p``) joins the most confident pairs first,
 and ``k`` is integrated along it, so the output is always ``I_m + k 2^N`` with integer ``k``. The probability of
-the path from the root, ``prod p``, is a confidence per pixel. By default a small head's per-pixel level costs
-then move whole regions (option ``levels``, :mod:`torch_modulo.singleshot.levels`). :func:`solve_learned` is the
+the path from the root, ``prod p``, is a confidence per pixel. By default a small head's level costs (per 2 x 2
+block) then move whole regions (option ``levels``, :mod:`torch_modulo.singleshot.levels`). :func:`solve_learned` is the
 registry's solver; the caller anchors ``k`` (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
 
 The shipped weights (``weights/edge_jump.pt``, record in ``weights/MODEL_CARD.md``) load offline from the package
@@ -401,7 +401,7 @@ def _windows(
     hook = None
     margin = tile_margin(net)
     if levels is not None:  # a level head on this network's encoder: its costs of each window go into `costs`
-        from torch_modulo.singleshot.levels import block_slices, level_margin, window_costs
+        from torch_modulo.singleshot.levels import _block_slices, level_margin, window_costs
 
         margin = max(margin, level_margin(levels))
     c = moduli.shape[0]
@@ -409,7 +409,7 @@ def _windows(
         if levels is not None and costs is not None:
 
             def hook(features: torch.Tensor, d2: torch.Tensor, core=core, at=(ys, xs)) -> None:
-                costs[(slice(None), slice(None), *block_slices(*at))] = (
+                costs[(slice(None), slice(None), *_block_slices(*at))] = (
                     window_costs(levels, features, d2, c, *core).cpu().numpy()
                 )
 

@@ -1,4 +1,4 @@
-"""Learned levels: a per-pixel distribution over the rollover count, and region moves that use it.
+"""Learned levels: a distribution over the rollover count per 2 x 2 block of pixels, and region moves that use it.
 
 The spanning tree of ``method="learned"`` (:func:`~torch_modulo.singleshot.learned.decode_jumps`) often puts whole
 regions one or two periods off (``research/learned_regions.py`` measures how much): a region ringed by steps the
@@ -29,6 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from torch_modulo._checks import check_int
 from torch_modulo.singleshot.grid import grid_components
 from torch_modulo.singleshot.learned import (
     _DIRECTIONS,
@@ -48,7 +49,6 @@ __all__ = [
     "LEVEL_WEIGHTS",
     "LevelHead",
     "LevelNet",
-    "block_slices",
     "level_margin",
     "load_levels",
     "predict_levels",
@@ -191,12 +191,13 @@ def window_costs(
 ) -> torch.Tensor:
     """The (channels, levels, ceil(rows / 2), ceil(cols / 2)) costs of the 2 x 2 blocks of the core ``rows, cols`` of
     one window (starting at even offsets) from its (1, 15, h, w) features and its trunk's ``d2``."""
-    logits = net.head_logits(features, d2)[(0, slice(channels), slice(None), *block_slices(rows, cols))]
+    logits = net.head_logits(features, d2)[(0, slice(channels), slice(None), *_block_slices(rows, cols))]
     return -torch.log_softmax(logits.float(), dim=1)
 
 
-def block_slices(rows: slice, cols: slice) -> tuple[slice, slice]:
-    """The 2 x 2 blocks of the pixels ``rows, cols`` (starting at even offsets)."""
+def _block_slices(rows: slice, cols: slice) -> tuple[slice, slice]:
+    """The 2 x 2 blocks of the pixels ``rows, cols``, which start at even offsets (the windows' cores do: they start
+    at multiples of the trunk's stride)."""
     return slice(rows.start // 2, (rows.stop + 1) // 2), slice(cols.start // 2, (cols.stop + 1) // 2)
 
 
@@ -209,7 +210,7 @@ def _level_pieces(
     # windows and cores start at multiples of the stride, so on the half-resolution grid too
     for window, core, at in window_grid(moduli, tile, level_margin(net), net.stride):
         features = edge_features(window, bits)
-        yield block_slices(*at), window_costs(net, features, net.trunk.encode(features)[1], moduli.shape[0], *core)
+        yield _block_slices(*at), window_costs(net, features, net.trunk.encode(features)[1], moduli.shape[0], *core)
 
 
 def predict_levels(net: LevelNet, moduli: torch.Tensor, bits: int, tile: int = TILE) -> np.ndarray:
@@ -288,17 +289,18 @@ def region_moves(
     k = np.asarray(k, dtype=np.int64)
     u = np.asarray(u)
     period = 1 << bits
+    h, w = m.shape
+    block = check_int(block, "block", 1)
+    if u.ndim != 3 or u.shape[1:] != (-(-h // block), -(-w // block)):
+        raise ValueError(f"level costs of shape {u.shape} for a {h} x {w} plane in blocks of {block}")
     if k.size == 0:
         return k.copy()
-    h, w = m.shape
     levels = u.shape[0]
     first = np.asarray(first, dtype=np.int64)
     joined = (np.asarray(table[d]).min(axis=0)[a] <= sure for d, (a, _) in enumerate(_DIRECTIONS))
     count, flat = grid_components(*joined)
     labels = flat.reshape(h, w)
 
-    if u.shape[1:] != (-(-h // block), -(-w // block)):
-        raise ValueError(f"level costs of shape {u.shape} for a {h} x {w} plane in blocks of {block}")
     flat_u = np.ascontiguousarray(u).reshape(levels, -1)
     of_block = ((np.arange(h) // block)[:, None] * u.shape[2] + np.arange(w) // block).ravel()  # each pixel's block
 
@@ -329,9 +331,10 @@ def region_moves(
     starts = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=count))])
     flat_k = k.ravel()
 
-    def fill(to: np.ndarray, regions: np.ndarray) -> None:
-        """Make ``level[to + _REACH, regions]`` ready where ``|to| <= _REACH`` ((S, n) totals of n regions)."""
-        if regions.size == count and not moved.any():  # the first round: whole rows, pixel by pixel
+    def fill(to: np.ndarray, regions: np.ndarray, whole_rows: bool) -> None:
+        """Make ``level[to + _REACH, regions]`` ready where ``|to| <= _REACH`` ((S, n) totals of n regions); with
+        ``whole_rows`` (the first round: every region, none moved yet), the rows of ``to`` for every region at once."""
+        if whole_rows:
             for t in np.unique(to[np.abs(to) <= _REACH]).tolist():
                 if not ready[t + _REACH].all():
                     level[t + _REACH] = weight * (np.bincount(flat, level_cost(k + t), count) - base)
@@ -386,11 +389,12 @@ def region_moves(
         inside = (index >= 0) & (index < size)
         return np.where(inside, np.take_along_axis(lp[:, pair], np.clip(index, 0, size - 1), 0), _MAX_COST)
 
-    def drops(regions: np.ndarray, local: np.ndarray | None, entry: np.ndarray | None) -> np.ndarray:
+    def drops(regions: np.ndarray, local: np.ndarray | None, entry: np.ndarray | None, first: bool) -> np.ndarray:
         """(len(shifts), len(regions)): how much the cost changes if each region moves by each shift now, from
-        ``entries(regions)`` (every region when ``regions`` is all of them: then pair by pair)."""
+        ``entries(regions)`` (every region when ``regions`` is all of them: then pair by pair; ``first``: the first
+        round)."""
         to = moved[regions] + shifts[:, None]
-        fill(to, regions)
+        fill(to, regions, whole_rows=first)
         delta = np.where(np.abs(to) <= _REACH, level[np.clip(to, -_REACH, _REACH) + _REACH, regions], np.inf)
         delta -= level[moved[regions] + _REACH, regions]
         slots = np.arange(shifts.size)[:, None] * regions.size
@@ -436,10 +440,10 @@ def region_moves(
     best = np.zeros(count)  # the largest drop of the cost a move of each region gives now (negative: a drop) ...
     choice = np.zeros(count, dtype=np.int64)  # ... and that move (an index into shifts)
     active = np.arange(count)  # the regions whose drop must be computed again: the movers and their neighbours
-    for _ in range(rounds):
+    for round_ in range(rounds):
         every = active.size == count  # the first round: pair by pair, no entries needed
         local, entry = (None, None) if every else entries(active)
-        delta = drops(active, local, entry)
+        delta = drops(active, local, entry, first=round_ == 0)
         best[active], choice[active] = delta.min(axis=0), delta.argmin(axis=0)
         # A region moves when its drop is larger than all its neighbours' (no two neighbours move in one round);
         # only the active regions and their neighbours can decide differently from the last round.
