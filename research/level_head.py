@@ -176,6 +176,13 @@ def recipe_batches(args: argparse.Namespace) -> Callable[[], tuple[torch.Tensor,
     return lambda: recipe.make_batch(scenes, options.batch, options.crop, rng, options, references)
 
 
+def level_loss(logits: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
+    """Cross-entropy of (B, S, LEVELS, H, W) level logits against the levels of (B, S, H, W) true counts
+    (``floor(counts / 2^N)``, clipped to the head's levels)."""
+    levels = torch.floor(counts / PERIOD).long().clamp_(0, LEVELS - 1)
+    return F.cross_entropy(logits.permute(0, 1, 3, 4, 2).reshape(-1, LEVELS), levels.reshape(-1))
+
+
 def cosine(opt: torch.optim.Optimizer, lr: float, step: int, steps: int) -> None:
     """Set the learning rate of step ``step`` of ``steps`` on a cosine from ``lr``."""
     for group in opt.param_groups:
@@ -214,13 +221,11 @@ def train(args: argparse.Namespace) -> None:
         target, _ = edge_targets(counts, BITS, net.max_jump)
         with torch.set_grad_enabled(not args.frozen):
             features, head_input = trunk_and_head_input(net, wrapped)
-        levels = torch.floor(counts / PERIOD).long().clamp_(0, LEVELS - 1)
-        level_logits = head(head_input).permute(0, 1, 3, 4, 2).reshape(-1, LEVELS)
-        level_loss = F.cross_entropy(level_logits, levels.reshape(-1))
+        head_loss = level_loss(head(head_input), counts)
         if args.frozen or args.edge_weight == 0:
-            loss = level_loss
+            loss = head_loss
         else:
-            loss = args.edge_weight * edge_loss(net.logits(features), target, 2.0) + args.beta * level_loss
+            loss = args.edge_weight * edge_loss(net.logits(features), target, 2.0) + args.beta * head_loss
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -38,7 +38,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from research.level_head import Progress, cosine, recipe_batches
+from research.level_head import Progress, cosine, level_loss, recipe_batches
 from torch_modulo import protocols
 from torch_modulo.singleshot.learned import (
     BAND,
@@ -137,9 +137,7 @@ def train(args: argparse.Namespace) -> None:
         x = edge_features(wrapped, BITS)
         with torch.no_grad():
             e1, d2 = edge.encode(x)
-        levels = torch.floor(counts / PERIOD).long().clamp_(0, LEVELS - 1)
-        logits = net(x, e1, d2).permute(0, 1, 3, 4, 2).reshape(-1, LEVELS)
-        loss = F.cross_entropy(logits, levels.reshape(-1))
+        loss = level_loss(net(x, e1, d2), counts)
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -496,8 +496,9 @@ def predict_jumps(
         return tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
     if levels is not None and augment:
         raise ValueError("predict_jumps shares the encoder with the levels without augment only")
-    blocks = (c, 0 if levels is None else levels.head.levels, (h + 1) // 2, (w + 1) // 2)
-    level_costs = None if levels is None else np.empty(blocks, dtype=np.float16)
+    level_costs = None
+    if levels is not None:  # one per 2 x 2 block
+        level_costs = np.empty((c, levels.head.levels, (h + 1) // 2, (w + 1) // 2), dtype=np.float16)
     jump = np.empty((c, 2, h, w), dtype=np.int16)
     cost = np.empty((c, 2, *((2 * band + 1,) if band else ()), h, w), dtype=np.float32)
     offsets = torch.arange(-band, band + 1, device=moduli.device).view(1, 1, -1, 1, 1)
