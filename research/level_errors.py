@@ -39,6 +39,7 @@ from torch_modulo.singleshot.levels import load_levels, region_moves
 
 BITS = 8
 PERIOD = 1 << BITS
+TOP_LEVEL = 15  # the report by true level lumps the levels from this one on
 
 
 def offset(d: np.ndarray) -> int:
@@ -84,13 +85,27 @@ def energy(m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, u
 
 
 def plane_report(
-    m: np.ndarray, tree: np.ndarray, table: np.ndarray, first: np.ndarray, u: np.ndarray, truth: np.ndarray
+    m: np.ndarray,
+    tree: np.ndarray,
+    table: np.ndarray,
+    first: np.ndarray,
+    u: np.ndarray,
+    truth: np.ndarray,
+    peak: float | None = None,
 ):
-    """The numbers of one plane (a dict of sums and counts); ``u``: (L, H, W) level costs, one per pixel."""
+    """The numbers of one plane (a dict of sums and counts); ``u``: (L, H, W) level costs, one per pixel; ``peak``:
+    the protocol's largest count (the values there were clipped)."""
     true_k = truth // PERIOD
     moved = region_moves(m, tree, table, first, u, BITS, block=1)
     wrong = (moved - true_k) != offset(moved - true_k)
     out = {"values": m.size, "wrong": int(wrong.sum())}
+    by_level = np.minimum(true_k, TOP_LEVEL).ravel()
+    for key, values in (("at k", np.ones(m.size)), ("right at k", ~wrong.ravel())):
+        for level, n in enumerate(np.bincount(by_level, values, TOP_LEVEL + 1).tolist()):
+            out[f"{key} {level}"] = int(n)
+    if peak is not None:
+        clipped = truth >= peak
+        out["clipped"], out["clipped right"] = int(clipped.sum()), int((clipped & ~wrong).sum())
     for tau in (0.01, 0.1, 0.5):
         count, labels = regions(table, tau)
         k = oracle(moved, true_k, labels, count)
@@ -140,7 +155,10 @@ def main(argv: list[str] | None = None) -> None:
                 m, t = moduli[c].numpy(), truth[c].numpy()
                 pixels = u[c].repeat(2, axis=1).repeat(2, axis=2)[:, : m.shape[0], : m.shape[1]]  # a cost per pixel
                 tree = decode_jumps(m, jump[c], cost[c, :, BAND], BITS)[0]
-                for key, value in plane_report(m, tree, cost[c], jump[c].astype(np.int64) - BAND, pixels, t).items():
+                report = plane_report(
+                    m, tree, cost[c], jump[c].astype(np.int64) - BAND, pixels, t, protocols.PROTOCOL_PEAKS[proto]
+                )
+                for key, value in report.items():
                     scene[key] += value
             scene["planes"] = moduli.shape[0]
             per_scene.append(scene)
@@ -161,6 +179,18 @@ def main(argv: list[str] | None = None) -> None:
             f"of the values, on {100 * totals['head right on wrong'] / max(totals['wrong'], 1):.1f}% of the wrong ones"
             f" | isolated errors {totals['isolated'] / max(totals['wrong'], 1):.2f} | wrong large regions "
             f"{large / max(totals['wrong'], 1):.2f} of the wrong values: {shares or 'none'}",
+            flush=True,
+        )
+        present = [j for j in range(TOP_LEVEL + 1) if totals[f"at k {j}"]]
+        print(
+            f"{proto} by true k (all planes pooled; k: share of the values %, right %): "
+            + ", ".join(
+                f"{j}{'+' if j == TOP_LEVEL else ''}: {100 * totals[f'at k {j}'] / totals['values']:.2f} "
+                f"{100 * totals[f'right at k {j}'] / totals[f'at k {j}']:.0f}"
+                for j in present
+            )
+            + f" | clipped at the peak: {100 * totals['clipped'] / totals['values']:.2f}% of the values, "
+            f"{100 * totals['clipped right'] / max(totals['clipped'], 1):.0f}% right",
             flush=True,
         )
 

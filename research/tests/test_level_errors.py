@@ -45,3 +45,16 @@ def test_plane_report_of_a_plane_the_moves_get_right() -> None:
     out = level_errors.plane_report(m, np.zeros_like(m), table, first, u, truth)
     assert out["values"] == m.size and out["wrong"] == 0  # the level costs move the right half up
     assert out["oracle 0.01"] == m.size and out["head right"] == m.size and out["truth costs more"] == 0
+
+
+def test_plane_report_counts_values_by_true_level_and_at_the_clip() -> None:
+    m, truth, table, first, u = _halves()
+    out = level_errors.plane_report(m, np.zeros_like(m), table, first, u, truth, peak=float(truth.max()))
+    assert out["at k 0"] == out["at k 1"] == 24 and out["at k 2"] == 0
+    assert out["right at k 0"] == out["right at k 1"] == 24  # the level costs move the right half up
+    assert out["clipped"] == out["clipped right"] == 24  # the right half is at the peak
+    # level costs that keep the right half down: one half is wrong (the halves tie in the alignment)
+    flat = np.full_like(u, 4.0)
+    flat[0] = 0.5
+    out = level_errors.plane_report(m, np.zeros_like(m), table, first, flat, truth, peak=float(truth.max()))
+    assert out["right at k 0"] + out["right at k 1"] == 24 and out["clipped right"] == out["right at k 1"]
