@@ -77,6 +77,8 @@ def test_grid_components_of_empty_and_bad_grids() -> None:
     assert count == 0 and labels.shape == (0,)
     with pytest.raises(ValueError, match=r"right \(3, 1\) and down \(2, 5\)"):
         grid_components(np.ones((3, 1), bool), np.ones((2, 5), bool))
+    with pytest.raises(ValueError, match=r"right \(3,\) and down \(3,\)"):  # not a grid's pairs at all
+        grid_components(np.ones(3, bool), np.ones(3, bool))
 
 
 def test_components_of_two_chains() -> None:

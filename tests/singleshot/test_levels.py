@@ -141,6 +141,11 @@ class TestPrediction:
 
     def test_no_channels(self) -> None:
         assert predict_levels(tiny(), torch.zeros(0, 8, 8), 8).shape == (0, 5, 4, 4)
+        jump, cost, u = predict_jumps(load_model(), torch.zeros(0, 8, 6), 8, band=BAND, levels=load_levels())
+        assert jump.shape == (0, 2, 8, 6) and cost.shape == (0, 2, 2 * BAND + 1, 8, 6)
+        assert u.shape[0] == 0 and u.shape[2:] == (4, 3)
+        jump, cost = predict_jumps(load_model(), torch.zeros(0, 8, 6), 8)
+        assert jump.shape == cost.shape == (0, 2, 8, 6)
         k, confidence = learned_k(np.zeros((0, 8, 8)), 8, levels=True)
         assert k.shape == confidence.shape == (0, 8, 8)
 

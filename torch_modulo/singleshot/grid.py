@@ -153,6 +153,8 @@ def grid_components(right: np.ndarray, down: np.ndarray) -> tuple[int, np.ndarra
     from scipy import ndimage
 
     right, down = np.asarray(right, dtype=bool), np.asarray(down, dtype=bool)
+    if right.ndim != 2 or down.ndim != 2:
+        raise ValueError(f"right {right.shape} and down {down.shape} are not the pairs of one pixel grid")
     h, w = right.shape[0], down.shape[1]
     if right.shape != (h, max(w - 1, 0)) or down.shape != (max(h - 1, 0), w):
         raise ValueError(f"right {right.shape} and down {down.shape} are not the pairs of one pixel grid")

@@ -491,7 +491,7 @@ def predict_jumps(
         level_costs)``, float16 (C, levels, ceil(H / 2), ceil(W / 2)), one per 2 x 2 block.
     """
     c, h, w = moduli.shape
-    if c not in (1, SLOTS):
+    if c not in (0, 1, SLOTS):
         parts = [predict_jumps(net, moduli[i : i + 1], bits, augment, tile, band, levels) for i in range(c)]
         return tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
     if levels is not None and augment:
@@ -501,6 +501,8 @@ def predict_jumps(
         level_costs = np.empty((c, levels.head.levels, (h + 1) // 2, (w + 1) // 2), dtype=np.float16)
     jump = np.empty((c, 2, h, w), dtype=np.int16)
     cost = np.empty((c, 2, *((2 * band + 1,) if band else ()), h, w), dtype=np.float32)
+    if c == 0:  # no channels: nothing to predict
+        return (jump, cost) if level_costs is None else (jump, cost, level_costs)
     offsets = torch.arange(-band, band + 1, device=moduli.device).view(1, 1, -1, 1, 1)
     for (ys, xs), logp in _windows(net, moduli, bits, augment, tile, levels, level_costs):
         best, index = logp.max(dim=2)
