@@ -176,11 +176,16 @@ def recipe_batches(args: argparse.Namespace) -> Callable[[], tuple[torch.Tensor,
     return lambda: recipe.make_batch(scenes, options.batch, options.crop, rng, options, references)
 
 
-def level_loss(logits: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
+def level_loss(logits: torch.Tensor, counts: torch.Tensor, rolled_weight: float = 1.0) -> torch.Tensor:
     """Cross-entropy of (B, S, LEVELS, H, W) level logits against the levels of (B, S, H, W) true counts
-    (``floor(counts / 2^N)``, clipped to the head's levels)."""
+    (``floor(counts / 2^N)``, clipped to the head's levels); the values that rolled over (level above 0) weigh
+    ``rolled_weight`` times as much (a weighted mean)."""
     levels = torch.floor(counts / PERIOD).long().clamp_(0, LEVELS - 1)
-    return F.cross_entropy(logits.permute(0, 1, 3, 4, 2).reshape(-1, LEVELS), levels.reshape(-1))
+    weight = None
+    if rolled_weight != 1.0:
+        weight = torch.full((LEVELS,), float(rolled_weight), device=logits.device)
+        weight[0] = 1.0
+    return F.cross_entropy(logits.permute(0, 1, 3, 4, 2).reshape(-1, LEVELS), levels.reshape(-1), weight)
 
 
 def cosine(opt: torch.optim.Optimizer, lr: float, step: int, steps: int) -> None:

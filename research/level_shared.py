@@ -23,6 +23,14 @@ cores, the card about 5 more.
 
 Evaluation decodes as the package does (the shipped tree, then :func:`torch_modulo.singleshot.levels.region_moves`)
 and prints exact-k / rolled-over right (%) per protocol, and the seconds per megapixel of the level prediction.
+
+``train --rolled-weight W`` weighs the values that rolled over ``W`` times in the loss; ``eval --prior P`` divides
+the probabilities of the levels above 0 by ``P`` (tried, not kept: the weighting moves the head's prior towards
+the rolled-over levels and nothing else; the shipped head with ``--prior 0.333`` scores as ``--rolled-weight 3``
+does, docs/singleshot.md)::
+
+    python -m research.level_shared train --half --head-width 32 --steps 12000 --seed 57 --rolled-weight 3 --out rw3.pt
+    python -m research.level_shared eval --weights torch_modulo/singleshot/weights/levels.pt --prior 0.333333
 """
 
 from __future__ import annotations
@@ -137,7 +145,7 @@ def train(args: argparse.Namespace) -> None:
         x = edge_features(wrapped, BITS)
         with torch.no_grad():
             e1, d2 = edge.encode(x)
-        loss = level_loss(net(x, e1, d2), counts)
+        loss = level_loss(net(x, e1, d2), counts, args.rolled_weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -167,9 +175,12 @@ def train(args: argparse.Namespace) -> None:
         write_card(argparse.Namespace(weights=args.out, out=args.card, splits=["train", "validation"], data=None))
 
 
-def scores(edge: EdgeJumpNet, net: nn.Module, scenes: list[Path], proto: str) -> tuple[np.ndarray, float]:
+def scores(
+    edge: EdgeJumpNet, net: nn.Module, scenes: list[Path], proto: str, prior: float = 1.0
+) -> tuple[np.ndarray, float]:
     """Mean exact-k / rolled-over right (%) of the tree and of the region moves over ``scenes`` under ``proto`` (four
-    values), and the level prediction's seconds per megapixel and channel."""
+    values), and the level prediction's seconds per megapixel and channel. ``prior``: the probabilities of the levels
+    above 0 are divided by it (``log prior`` added to their costs), which undoes a ``--rolled-weight`` of that size."""
     rows, seconds, pixels = [], 0.0, 0
     for path in scenes:
         truth = protocols.protocol_counts(protocols.load_scene(path, 512), proto)
@@ -178,6 +189,8 @@ def scores(edge: EdgeJumpNet, net: nn.Module, scenes: list[Path], proto: str) ->
         jump, cost = predict_jumps(edge, moduli.float(), BITS, band=BAND)
         start = time.perf_counter()
         u = level_costs(edge, net, moduli)
+        if prior != 1.0:
+            u[:, 1:] += np.float16(np.log(prior))
         seconds += time.perf_counter() - start
         pixels += planes.size
         row = []
@@ -207,7 +220,7 @@ def evaluate(args: argparse.Namespace) -> None:
     net = load(args.weights, edge)
     scenes = scene_list(args.split, args.data)
     for proto in args.protocols:
-        mean, speed = scores(edge, net, scenes, proto)
+        mean, speed = scores(edge, net, scenes, proto, args.prior)
         print(
             f"{proto} ({len(scenes)} scenes) tree {mean[0]:.2f} / {mean[1]:.2f} | moves {mean[2]:.2f} / {mean[3]:.2f}"
             f" | levels {speed:.3f} s/MP/ch (whole image, not the package's strips)",
@@ -236,6 +249,8 @@ def write_card(args: argparse.Namespace) -> None:
         lines += [f"No summary of the run beside the weights (`{summary_file.name}`): data and settings unknown.", ""]
     else:
         settings = summary["settings"]
+        weight = settings.get("rolled_weight", 1.0)
+        rolled = "" if weight == 1.0 else f" --rolled-weight {weight:g}"
         loss = "none" if summary["final_loss"] is None else f"{summary['final_loss']:.4f}"
         lines += [
             "## Data",
@@ -248,7 +263,8 @@ def write_card(args: argparse.Namespace) -> None:
             "## Settings",
             "",
             f"`python -m research.level_shared train {'--half ' if settings.get('half') else ''}--head-width "
-            f"{settings['head_width']} --steps {settings['steps']} --lr {settings['lr']} --seed {settings['seed']}` "
+            f"{settings['head_width']} --steps {settings['steps']} --lr {settings['lr']} --seed {settings['seed']}"
+            f"{rolled}` "
             f"({summary['minutes']} minutes, {settings['threads']} threads; {summary['head_parameters']} trained "
             f"parameters; final smoothed loss {loss}). The trunk is the shipped edge network, "
             "frozen.",
@@ -298,6 +314,7 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--head-width", type=int, default=24)
     t.add_argument("--half", action="store_true", help="a head at half resolution on d2 alone (HalfLevels)")
     t.add_argument("--seed", type=int, default=53)
+    t.add_argument("--rolled-weight", type=float, default=1.0, help="weigh the values that rolled over this much")
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--out", type=Path, required=True)
     t.add_argument("--card", type=Path, default=None, help="then write a model card here (evaluates: minutes)")
@@ -307,6 +324,7 @@ def main(argv: list[str] | None = None) -> None:
     e.add_argument("--data", type=Path, default=None, help="another scenes folder (all its scenes)")
     e.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))
     e.add_argument("--threads", type=int, default=2)
+    e.add_argument("--prior", type=float, default=1.0, help="divide the levels above 0's probabilities by this")
     x = sub.add_parser("export", help="a --half record as torch_modulo/singleshot/weights/levels.pt")
     x.add_argument("--weights", type=Path, required=True)
     x.add_argument("--out", type=Path, required=True)

@@ -35,3 +35,19 @@ def test_the_head_sees_the_networks_features() -> None:
     net, head = EdgeJumpNet(width=16, max_jump=3), level_head.LevelHead(cin=level_head.HEAD_INPUT)
     features, head_input = level_head.trunk_and_head_input(net, torch.zeros(2, 3, 8, 12))
     assert features.shape == (2, 16, 8, 12) and head(head_input).shape == (2, 3, level_head.LEVELS, 8, 12)
+
+
+def test_level_loss_weighs_the_rolled_over_values() -> None:
+    logits = torch.randn(2, 1, level_head.LEVELS, 3, 4, generator=torch.Generator().manual_seed(0))
+    counts = torch.zeros(2, 1, 3, 4)
+    counts[:, :, 0] = 700.0  # level 2 in the first row
+    plain = level_head.level_loss(logits, counts)
+    assert torch.allclose(level_head.level_loss(logits, counts, 1.0), plain)
+    each = torch.nn.functional.cross_entropy(
+        logits.permute(0, 1, 3, 4, 2).reshape(-1, level_head.LEVELS),
+        (counts // 256).long().reshape(-1),
+        reduction="none",
+    )
+    rolled = (counts >= 256).reshape(-1)
+    expect = (3 * each[rolled].sum() + each[~rolled].sum()) / (3 * rolled.sum() + (~rolled).sum())
+    assert torch.allclose(level_head.level_loss(logits, counts, 3.0), expect)
