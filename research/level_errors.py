@@ -34,7 +34,15 @@ from scipy import ndimage
 
 from torch_modulo import protocols
 from torch_modulo.singleshot.grid import grid_components
-from torch_modulo.singleshot.learned import _DIRECTIONS, _MAX_COST, BAND, decode_jumps, load_model, predict_jumps
+from torch_modulo.singleshot.learned import (
+    _DIRECTIONS,
+    _MAX_COST,
+    BAND,
+    _pair_costs,
+    decode_jumps,
+    load_model,
+    predict_jumps,
+)
 from torch_modulo.singleshot.levels import load_levels, region_moves
 
 BITS = 8
@@ -72,16 +80,8 @@ def energy(m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, u
     """``region_moves``' cost of ``k`` (weight 1): the level costs' sum and the pairs' sum."""
     levels = u.shape[0]
     level = float(np.take_along_axis(u, np.clip(k, 0, levels - 1)[None], 0).astype(np.float64).sum())
-    pair = 0.0
-    for d, (a, b) in enumerate(_DIRECTIONS):
-        wd = np.mod(m[b] - m[a] + PERIOD // 2, PERIOD) - PERIOD // 2
-        n = (m[b] + PERIOD * k[b] - m[a] - PERIOD * k[a] - wd) // PERIOD - first[d][a]
-        t = np.clip(table[d][(slice(None), *a)], 0.0, _MAX_COST).astype(np.float64)
-        inside = (n >= 0) & (n < t.shape[0])
-        pair += float(
-            np.where(inside, np.take_along_axis(t, np.clip(n, 0, t.shape[0] - 1)[None], 0)[0], _MAX_COST).sum()
-        )
-    return level, pair
+    costs = _pair_costs(m, k, np.clip(table, 0.0, _MAX_COST).astype(np.float64), first, PERIOD, 0, 0)
+    return level, float(sum(c.sum() for c in costs))
 
 
 def plane_report(

@@ -39,7 +39,17 @@ from torch import nn
 
 from research.level_head import Progress, cosine
 from torch_modulo import protocols
-from torch_modulo.singleshot.learned import BAND, SLOTS, TILE, decode_jumps, edge_features, load_model, predict_jumps
+from torch_modulo.singleshot.learned import (
+    _DIRECTIONS,
+    BAND,
+    SLOTS,
+    TILE,
+    _pair_costs,
+    decode_jumps,
+    edge_features,
+    load_model,
+    predict_jumps,
+)
 from torch_modulo.singleshot.levels import load_levels, region_moves
 
 BITS = 8
@@ -60,24 +70,19 @@ def first_pass(edge, levels, moduli: np.ndarray) -> dict[str, np.ndarray]:
         first = jump[c].astype(np.int64) - BAND
         k = decode_jumps(plane, jump[c], cost[c, :, BAND], BITS)[0]
         ks.append(region_moves(plane, k, cost[c], first, u[c], BITS))
-    k = np.stack(ks)
-    return {"k": k, "table": cost, "first": jump.astype(np.int64) - BAND, "taken": taken_cost(moduli, k, cost, jump)}
+    k, first = np.stack(ks), jump.astype(np.int64) - BAND
+    return {"k": k, "table": cost, "first": first, "taken": taken_cost(moduli, k, cost, first)}
 
 
-def taken_cost(moduli: np.ndarray, k: np.ndarray, table: np.ndarray, jump: np.ndarray) -> np.ndarray:
-    """(C, H, W): per pixel, the largest cost ``-log p`` of the jumps ``k`` takes across its four pairs."""
+def taken_cost(moduli: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """(C, H, W): per pixel, the largest cost ``-log p`` of the jumps ``k`` takes across its four pairs (``table``,
+    (C, 2, K, H, W), holds the costs of the jumps ``first .. first + K - 1``; 30 outside)."""
     m = moduli.astype(np.int64)
     out = np.zeros(m.shape, dtype=np.float32)
-    for d, (a, b) in enumerate(((np.s_[:, :, :-1], np.s_[:, :, 1:]), (np.s_[:, :-1, :], np.s_[:, 1:, :]))):
-        wd = np.mod(m[b] - m[a] + PERIOD // 2, PERIOD) - PERIOD // 2
-        n = (m[b] + PERIOD * k[b] - m[a] - PERIOD * k[a] - wd) // PERIOD
-        index = n - (jump[:, d][a].astype(np.int64) - BAND)
-        inside = (index >= 0) & (index < 2 * BAND + 1)
-        t = table[:, d][(slice(None), slice(None), *a[1:])]
-        c = np.take_along_axis(t, np.clip(index, 0, 2 * BAND)[:, None], 1)[:, 0]
-        c = np.where(inside, c, 30.0)
-        out[a] = np.maximum(out[a], c)
-        out[b] = np.maximum(out[b], c)
+    for c in range(m.shape[0]):
+        for (a, b), cost in zip(_DIRECTIONS, _pair_costs(m[c], k[c], table[c], first[c], PERIOD, 0, 0), strict=True):
+            out[c][a] = np.maximum(out[c][a], cost)
+            out[c][b] = np.maximum(out[c][b], cost)
     return out
 
 

@@ -21,7 +21,7 @@ def _halves() -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     jump = np.zeros((1, 2, 6, 8), dtype=np.int16)
     k = np.zeros((1, 6, 8), dtype=np.int64)
     first = {"k": k, "table": table, "first": jump.astype(np.int64) - BAND}
-    first["taken"] = level_refine.taken_cost(m, k, table, jump)
+    first["taken"] = level_refine.taken_cost(m, k, table, first["first"])
     return m, truth // 256, first
 
 
@@ -32,10 +32,10 @@ def test_taken_cost_is_the_dearest_jump_at_each_pixel() -> None:
     # the truth takes jump 1 across the border: also within the band there, and sure everywhere else
     table = first["table"].copy()
     table[0, 0, :, :, 3] = np.array([30, 30, 30, 0.2, 30])[:, None]
-    again = level_refine.taken_cost(m, k_true, table, np.zeros((1, 2, 6, 8), dtype=np.int16))[0]
+    again = level_refine.taken_cost(m, k_true, table, first["first"])[0]
     assert np.all(again[:, 3:5] == np.float32(0.2)) and again[:, :3].max() == 0
     # a jump outside the band costs 30
-    far = level_refine.taken_cost(m, k_true + np.arange(8) // 4 * 5, first["table"], np.zeros((1, 2, 6, 8), "int16"))
+    far = level_refine.taken_cost(m, k_true + np.arange(8) // 4 * 5, first["table"], first["first"])
     assert np.all(far[0, :, 3:5] == 30)
 
 
