@@ -482,6 +482,19 @@ class TestTiles:
             whole = predict_edges(net, moduli, 8, augment=True)
             assert torch.allclose(predict_edges(net, moduli, 8, augment=True, tile=20), whole, atol=1e-4)
 
+    def test_augment_averages_the_flips_probabilities(self) -> None:
+        torch.manual_seed(1)
+        net = EdgeJumpNet(width=4, max_jump=3, dilations=(1,)).eval()
+        moduli = torch.randint(0, 256, (1, 24, 32), generator=torch.Generator().manual_seed(5))
+        flips = []
+        for dims in ((), (-1,), (-2,), (-1, -2)):
+            logp = predict_edges(net, moduli.flip(dims) if dims else moduli, 8)
+            flips.append(_unflip(logp, dims).exp() if dims else logp.exp())
+        mean = torch.stack(flips).mean(dim=0)  # probabilities, not log-probabilities: no false certainty
+        got = predict_edges(net, moduli, 8, augment=True).exp()
+        assert torch.allclose(got[..., :-1], mean[..., :-1], atol=1e-5)  # the last column has no right pair
+        assert torch.allclose(got.sum(dim=2), torch.ones(()), atol=1e-5)
+
     def test_no_grad_outside(self) -> None:
         net = EdgeJumpNet(width=4, max_jump=2).eval()
         pieces = learned._windows(net, torch.randint(0, 256, (1, 40, 30)), 8, False, 0)

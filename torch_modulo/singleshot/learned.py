@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -356,7 +357,8 @@ def _window_logp(
     Without ``augment``, the pieces are strips of :data:`STRIP` rows, so the head's logits (``2 (2J + 1)`` values
     per pixel and channel, the largest array of the network) and the last stage's input (:meth:`EdgeJumpNet.decode`)
     exist one strip at a time. With ``augment``, the four
-    flips' log-probabilities of the whole window are averaged and the core comes back in one piece. ``hook`` (not
+    flips' probabilities of the whole window are averaged (their mean, not that of the log-probabilities, which
+    would make a pair the flips disagree on look sure) and the core comes back in one piece. ``hook`` (not
     with ``augment``) gets the window's features and the encoder's half-resolution output ``d2`` first (the level
     head reads them, :mod:`torch_modulo.singleshot.levels`).
     """
@@ -370,13 +372,11 @@ def _window_logp(
             strip = net.decode(e1, d2, r0, min(rows.stop, r0 + STRIP))[..., cols]
             yield r0 - rows.start, torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
         return
-    total = None
+    flips = []
     for dims in ((), (-1,), (-2,), (-1, -2)):
         logp = torch.log_softmax(net(edge_features(x.flip(dims) if dims else x, bits), channels).float(), dim=3)
-        logp = _unflip(logp[0], dims) if dims else logp[0]
-        total = logp if total is None else total + logp
-    assert total is not None
-    yield 0, torch.log_softmax(total[..., rows, cols], dim=2)
+        flips.append(_unflip(logp[0], dims) if dims else logp[0])
+    yield 0, torch.logsumexp(torch.stack(flips)[..., rows, cols], dim=0) - math.log(len(flips))
 
 
 def _windows(
@@ -448,7 +448,7 @@ def predict_edges(
         moduli: (C, H, W) moduli, C = 1 (seen as grey: repeated into the three slots) or 3 (seen together); other
             channel counts are predicted one channel at a time.
         bits: the sensor bit depth ``N``.
-        augment: average the log-probabilities over the four flips of the image (four times the work).
+        augment: average the probabilities over the four flips of the image (four times the work).
         tile: predict in tiles of this side (plus :func:`tile_margin` of context; 0: the whole image at once).
             The result is the same up to rounding; the output itself still holds ``2 (2J + 1)`` values per pixel
             and channel (:func:`predict_jumps` keeps two).
