@@ -169,7 +169,8 @@ def recipe_batches(args: argparse.Namespace) -> Callable[[], tuple[torch.Tensor,
 
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
-    options = recipe.parse_args(["--crop", "128", "--batch", "6", "--scene-exposure", "0.5"])
+    crop, size = str(getattr(args, "crop", 128)), str(getattr(args, "batch", 6))
+    options = recipe.parse_args(["--crop", crop, "--batch", size, "--scene-exposure", "0.5"])
     rng = np.random.default_rng(args.seed)
     scenes = recipe.load_train_scenes(options.scene_side, options.data)
     references = [recipe.exposure_references(s) for s in scenes]

@@ -31,6 +31,15 @@ does, docs/singleshot.md)::
 
     python -m research.level_shared train --half --head-width 32 --steps 12000 --seed 57 --rolled-weight 3 --out rw3.pt
     python -m research.level_shared eval --weights torch_modulo/singleshot/weights/levels.pt --prior 0.333333
+
+``train --context W`` (:class:`ContextLevels`, tried, not kept: no better on the training scenes, the selection set
+or the validation scenes, docs/singleshot.md) adds a coarse branch of width ``W`` beside the half-resolution head;
+``--init`` starts a run from other level weights (the shipped ``levels.pt`` too), ``--crop`` and ``--batch`` set the
+training crops::
+
+    python -m research.level_shared train --context 32 --head-width 32 \
+        --init torch_modulo/singleshot/weights/levels.pt --crop 320 --batch 5 --steps 2500 --lr 5e-4 --seed 70 \
+        --out context.pt
 """
 
 from __future__ import annotations
@@ -102,6 +111,36 @@ class HalfLevels(nn.Module):
         )
 
 
+class ContextLevels(HalfLevels):
+    """:class:`HalfLevels` with a coarse branch: ``d2`` pooled 8 x 8 (1/16 of the image), three 3 x 3 convolutions
+    (dilations 1, 2, 4: about 120 pixels more radius than the trunk's 142), upsampled (bilinear) and given to the
+    head beside ``d2``. A bright region's level may hang on what lies beyond the trunk's view (tried, not kept)."""
+
+    def __init__(self, edge: EdgeJumpNet, head_width: int = 32, levels: int = LEVELS, context: int = 32) -> None:
+        super().__init__(edge, head_width, levels)
+        cin = 2 * edge.config["width"] + 15
+        self.context = nn.Sequential(
+            nn.Conv2d(cin, context, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(context, context, 3, padding=2, dilation=2),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(context, context, 3, padding=4, dilation=4),
+            nn.ReLU(inplace=True),
+        )
+        self.head = LevelHead(cin + context, head_width, levels)
+
+    def forward(self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor) -> torch.Tensor:
+        half = torch.cat([d2, F.avg_pool2d(x, 2)], dim=1)
+        h, w = half.shape[-2:]
+        coarse = self.context(F.avg_pool2d(half, 8, ceil_mode=True))
+        coarse = F.interpolate(coarse, size=(h, w), mode="bilinear", align_corners=False)
+        logits = self.head(torch.cat([half, coarse], dim=1))
+        b, s, n = logits.shape[:3]
+        return F.interpolate(logits.reshape(b, s * n, h, w), scale_factor=2.0, mode="nearest").view(
+            b, s, n, 2 * h, 2 * w
+        )
+
+
 def load(path: Path, edge: EdgeJumpNet) -> nn.Module:
     """A ``train`` record, or a package level weights file (``export``'s output, whose trunk is ``edge``), as the
     research network."""
@@ -116,8 +155,10 @@ def load(path: Path, edge: EdgeJumpNet) -> nn.Module:
         net = HalfLevels(edge, int(head["net.0.bias"].numel()), int(head["net.6.bias"].numel()) // SLOTS)
         net.head.load_state_dict(head)
         return net.eval()
-    kind = HalfLevels if record.get("half") else SharedLevels
-    net = kind(edge, record["head_width"], record["levels"])
+    if record.get("context"):
+        net = ContextLevels(edge, record["head_width"], record["levels"], record["context"])
+    else:
+        net = (HalfLevels if record.get("half") else SharedLevels)(edge, record["head_width"], record["levels"])
     net.load_state_dict({k: v.float() for k, v in record["state"].items()})
     return net.eval()
 
@@ -133,10 +174,33 @@ def level_costs(edge: EdgeJumpNet, net: nn.Module, moduli: torch.Tensor) -> np.n
     return (-torch.log_softmax(logits, dim=1)).numpy().astype(np.float16)
 
 
+def start_from(net: nn.Module, init: nn.Module) -> None:
+    """Copy ``init``'s weights into ``net`` where the shapes allow; a first convolution with more input channels
+    takes ``init``'s in its first ones and zeros in the rest (a :class:`ContextLevels` starts as the
+    :class:`HalfLevels` it is given, its coarse branch unused)."""
+    state = net.state_dict()
+    for key, value in init.state_dict().items():
+        if key not in state:
+            continue
+        if state[key].shape == value.shape:
+            state[key] = value.clone()
+        elif state[key].ndim == 4 and state[key].shape[0] == value.shape[0] and state[key].shape[2:] == value.shape[2:]:
+            state[key] = torch.zeros_like(state[key])
+            state[key][:, : value.shape[1]] = value
+        else:
+            raise SystemExit(f"--init: {key} has shape {tuple(value.shape)}, this network {tuple(state[key].shape)}")
+    net.load_state_dict(state)
+
+
 def train(args: argparse.Namespace) -> None:
     batch = recipe_batches(args)
     edge = load_model()
-    net = (HalfLevels if args.half else SharedLevels)(edge, args.head_width).train()
+    if args.context:
+        net = ContextLevels(edge, args.head_width, context=args.context).train()
+    else:
+        net = (HalfLevels if args.half else SharedLevels)(edge, args.head_width).train()
+    if args.init is not None:
+        start_from(net, load(args.init, edge))
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     progress = Progress(args.steps)
     for step in range(args.steps):
@@ -151,7 +215,8 @@ def train(args: argparse.Namespace) -> None:
         opt.step()
         progress(step, float(loss.detach()))
     record = {
-        "half": args.half,
+        "half": args.half or bool(args.context),
+        "context": args.context,
         "head_width": args.head_width,
         "levels": LEVELS,
         "state": {k: v.detach().half() for k, v in net.state_dict().items()},
@@ -297,8 +362,8 @@ def export(args: argparse.Namespace) -> None:
     """A ``--half`` record as the package's level weights: the shipped edge network as the trunk, and the head."""
     edge = load_model()
     record = torch.load(args.weights, map_location="cpu", weights_only=True)
-    if not record.get("half"):
-        raise SystemExit(f"{args.weights}: only a --half record is the package's LevelNet")
+    if not record.get("half") or record.get("context"):
+        raise SystemExit(f"{args.weights}: only a --half record without --context is the package's LevelNet")
     head = {k.removeprefix("head."): v for k, v in record["state"].items() if k.startswith("head.")}
     out = {"config": edge.config, "state": {k: v.half() for k, v in edge.state_dict().items()}, "head": head}
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -314,6 +379,10 @@ def main(argv: list[str] | None = None) -> None:
     t.add_argument("--head-width", type=int, default=24)
     t.add_argument("--half", action="store_true", help="a head at half resolution on d2 alone (HalfLevels)")
     t.add_argument("--seed", type=int, default=53)
+    t.add_argument("--context", type=int, default=0, help="width of a coarse branch (ContextLevels; 0: none)")
+    t.add_argument("--init", type=Path, default=None, help="start from these level weights (a record or levels.pt)")
+    t.add_argument("--crop", type=int, default=128, help="training crops' side")
+    t.add_argument("--batch", type=int, default=6, help="crops per step")
     t.add_argument("--rolled-weight", type=float, default=1.0, help="weigh the values that rolled over this much")
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--out", type=Path, required=True)

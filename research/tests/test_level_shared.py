@@ -64,3 +64,43 @@ def test_load_reads_the_package_format(tmp_path) -> None:
     assert np.allclose(
         research.astype(np.float32), predict_levels(load_levels(), moduli, 8).astype(np.float32), atol=1e-2
     )
+
+
+def test_context_head_starts_as_its_init_and_is_not_exported(tmp_path) -> None:
+    torch.manual_seed(4)
+    edge = load_model()
+    init = level_shared.load(Path(weights_path(None, LEVEL_WEIGHTS)), edge)
+    net = level_shared.ContextLevels(edge, 32, context=8)
+    level_shared.start_from(net, init)
+    x = torch.rand(1, 15, 40, 56)  # a side that is not a multiple of the coarse branch's 16 pixels
+    with torch.no_grad():
+        features = edge.encode(x)
+        assert torch.equal(net(x, *features), init(x, *features))  # the coarse branch enters at zero weight
+        for p in net.context.parameters():
+            p.add_(0.1)
+        net.head.net[0].weight.add_(0.1)
+        assert not torch.allclose(net(x, *features), init(x, *features))
+    record = {"half": True, "context": 8, "head_width": 32, "levels": level_shared.LEVELS, "state": net.state_dict()}
+    torch.save(record, tmp_path / "context.pt")
+    loaded = level_shared.load(tmp_path / "context.pt", edge)
+    assert isinstance(loaded, level_shared.ContextLevels)
+    with torch.no_grad():
+        assert torch.allclose(loaded(x, *features), net(x, *features), atol=1e-2)
+    try:
+        level_shared.export(argparse.Namespace(weights=tmp_path / "context.pt", out=tmp_path / "levels.pt"))
+    except SystemExit as err:
+        assert "--context" in str(err)
+    else:
+        raise AssertionError("a --context record was exported as the package's LevelNet")
+    assert not (tmp_path / "levels.pt").exists()
+
+
+def test_start_from_names_a_shape_it_cannot_copy() -> None:
+    edge = load_model()
+    wide, narrow = level_shared.HalfLevels(edge, 32), level_shared.HalfLevels(edge, 16)
+    try:
+        level_shared.start_from(narrow, wide)
+    except SystemExit as err:
+        assert "head.net.0" in str(err)
+    else:
+        raise AssertionError("start_from copied weights of another width")
