@@ -119,14 +119,7 @@ class ContextLevels(HalfLevels):
     def __init__(self, edge: EdgeJumpNet, head_width: int = 32, levels: int = LEVELS, context: int = 32) -> None:
         super().__init__(edge, head_width, levels)
         cin = 2 * edge.config["width"] + 15
-        self.context = nn.Sequential(
-            nn.Conv2d(cin, context, 3, padding=1),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(context, context, 3, padding=2, dilation=2),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(context, context, 3, padding=4, dilation=4),
-            nn.ReLU(inplace=True),
-        )
+        self.context = LevelHead(cin, context, 1).net[:-1]  # a level head's three dilated convolutions
         self.head = LevelHead(cin + context, head_width, levels)
 
     def forward(self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor) -> torch.Tensor:
