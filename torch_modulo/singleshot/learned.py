@@ -372,11 +372,14 @@ def _window_logp(
             strip = net.decode(e1, d2, r0, min(rows.stop, r0 + STRIP))[..., cols]
             yield r0 - rows.start, torch.log_softmax(net.logits(strip, channels).float(), dim=3)[0]
         return
-    flips = []
-    for dims in ((), (-1,), (-2,), (-1, -2)):
+    flips = ((), (-1,), (-2,), (-1, -2))
+    total = None  # log of the sum of the flips' probabilities, one flip at a time
+    for dims in flips:
         logp = torch.log_softmax(net(edge_features(x.flip(dims) if dims else x, bits), channels).float(), dim=3)
-        flips.append(_unflip(logp[0], dims) if dims else logp[0])
-    yield 0, torch.logsumexp(torch.stack(flips)[..., rows, cols], dim=0) - math.log(len(flips))
+        logp = _unflip(logp[0], dims) if dims else logp[0]
+        total = logp if total is None else torch.logaddexp(total, logp)
+    assert total is not None
+    yield 0, total[..., rows, cols] - math.log(len(flips))
 
 
 def _windows(
