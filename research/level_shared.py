@@ -103,8 +103,12 @@ class HalfLevels(nn.Module):
         super().__init__()
         self.head = LevelHead(2 * edge.config["width"] + 15, head_width, levels)
 
+    def head_input(self, half: torch.Tensor) -> torch.Tensor:
+        """What the head reads from the half-resolution features (``d2`` and the pooled input): those alone."""
+        return half
+
     def forward(self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor) -> torch.Tensor:
-        logits = self.head(torch.cat([d2, F.avg_pool2d(x, 2)], dim=1))
+        logits = self.head(self.head_input(torch.cat([d2, F.avg_pool2d(x, 2)], dim=1)))
         b, s, n, h, w = logits.shape
         return F.interpolate(logits.reshape(b, s * n, h, w), scale_factor=2.0, mode="nearest").view(
             b, s, n, 2 * h, 2 * w
@@ -122,16 +126,11 @@ class ContextLevels(HalfLevels):
         self.context = LevelHead(cin, context, 1).net[:-1]  # a level head's three dilated convolutions
         self.head = LevelHead(cin + context, head_width, levels)
 
-    def forward(self, x: torch.Tensor, e1: torch.Tensor, d2: torch.Tensor) -> torch.Tensor:
-        half = torch.cat([d2, F.avg_pool2d(x, 2)], dim=1)
-        h, w = half.shape[-2:]
+    def head_input(self, half: torch.Tensor) -> torch.Tensor:
+        """The half-resolution features and the coarse branch's, upsampled to them."""
         coarse = self.context(F.avg_pool2d(half, 8, ceil_mode=True))
-        coarse = F.interpolate(coarse, size=(h, w), mode="bilinear", align_corners=False)
-        logits = self.head(torch.cat([half, coarse], dim=1))
-        b, s, n = logits.shape[:3]
-        return F.interpolate(logits.reshape(b, s * n, h, w), scale_factor=2.0, mode="nearest").view(
-            b, s, n, 2 * h, 2 * w
-        )
+        coarse = F.interpolate(coarse, size=half.shape[-2:], mode="bilinear", align_corners=False)
+        return torch.cat([half, coarse], dim=1)
 
 
 def load(path: Path, edge: EdgeJumpNet) -> nn.Module:
