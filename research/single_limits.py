@@ -1,7 +1,7 @@
 """How much of a real scene can single-shot unwrapping recover at all, and does the confidence map find the rest?
 
-For every development scene under protocols A and B (same scenes, downsampling and scores as
-benchmarks/bench_single.py, through research/common.py), per channel:
+For every development scene (``--split`` for one side of the split) under protocols A, A10 and B (same scenes,
+downsampling and scores as benchmarks/bench_single.py, through research/common.py), per channel:
 
 - ``largest``: the share of pixels in the largest region joined by true neighbour steps ``|I_i - I_j| < 128``
   (8-neighbourhood). Inside such a region the wrapped differences integrate to the truth; between regions only
@@ -10,8 +10,11 @@ benchmarks/bench_single.py, through research/common.py), per channel:
   can (told by the truth which 4-neighbour steps are below half a period). No smoothness-based method can do
   better than knowing exactly where the steep steps are, so this bounds every method that unwraps by
   integrating small differences (the paper's energy, phase unwrapping, the priors of docs/singleshot.md).
+  Also its *rolled-over right* (exact-k over the values whose true ``k > 0``, as bench_single scores it):
+  what such a method can get right of the part a conventional camera saturates.
 - ``method``: exact-k and PSNR of a method (``--method``: ``guided``, the default method of unwrap_single, by
-  default; ``quality`` (path following per channel), ``fast``, ``paper`` or ``skimage``), and how well
+  default; ``quality`` (path following per channel), any method of unwrap_single with options as bench_single
+  takes them (``learned``, ``fast:tile=0``), ``skimage``, or ``none`` for the oracle alone), and how well
   :func:`torch_modulo.singleshot.unwrap_confidence` on its result finds its errors: the ROC AUC of
   ``1 - confidence`` for "k is wrong" (after the global offset is aligned), and the share of the wrong pixels
   among the 10% least confident.
@@ -24,7 +27,8 @@ benchmarks/bench_single.py, through research/common.py), per channel:
   optimiser of that prior can recover the scene.
 
 Examples (from the repository root):
-    python -m research.single_limits                      # both protocols, method="guided"
+    python -m research.single_limits                      # A, A10 and B, method="guided"
+    python -m research.single_limits --split validation --method learned
     python -m research.single_limits --protocols A --method fast --max-scenes 5
     python -m research.single_limits --protocols A --priors
 """
@@ -39,7 +43,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from research.common import BITS, DATA, PERIOD, aligned, load, protocol_a, protocol_b, run_method, scores, select_scenes
+from research.common import BITS, DATA, PERIOD, aligned, run_method
+from torch_modulo import protocols
 from torch_modulo._argtypes import nonnegative_int, positive_int
 from torch_modulo.singleshot import unwrap_confidence
 from torch_modulo.singleshot.anchor import anchor_k
@@ -92,6 +97,13 @@ def truncated_energy(image: np.ndarray, cap: float) -> float:
             first, second = pair_slices(*plane.shape, off)
             total += float(np.minimum(np.abs(plane[first] - plane[second]), cap).sum())
     return total
+
+
+def scene_scores(restored: np.ndarray, truth: np.ndarray, protocol: str) -> tuple[float, float, float]:
+    """Exact-k, rolled-over right and PSNR of restored (C, H, W) counts, as bench_single scores them."""
+    peak = protocols.PROTOCOL_PEAKS[protocol]
+    score = protocols.score_scene(torch.from_numpy(restored), torch.from_numpy(truth), BITS, peak)
+    return score.exact_k, score.rolled_over_right, score.psnr
 
 
 def restore(method: str, modulus: np.ndarray) -> tuple[np.ndarray, float]:
@@ -151,81 +163,107 @@ def channels_at_true_level(restored: np.ndarray, truth: np.ndarray) -> tuple[int
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, default=DATA)
-    parser.add_argument("--protocols", nargs="+", default=["A", "B"], choices=["A", "B"])
-    parser.add_argument("--method", default="guided", help="guided (default), quality, fast, paper or skimage")
+    parser.add_argument("--split", default="all", choices=protocols.SPLITS, help="only one side of the split")
+    parser.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))
+    parser.add_argument(
+        "--method", default="guided", help="guided (default), quality, any unwrap_single method spec, skimage or none"
+    )
     parser.add_argument("--scale", type=positive_int, default=512)
     parser.add_argument("--max-scenes", type=nonnegative_int, default=0)
     parser.add_argument("--priors", action="store_true", help="also compare truncated-linear prior energies")
     args = parser.parse_args()
-    scenes = select_scenes(args.data, args.max_scenes)
+    if args.priors and args.method == "none":
+        parser.error("--priors compares the method's result with the truth: it needs a --method other than none")
+    scenes = protocols.list_scenes(args.data, args.split)
+    scenes = scenes[: args.max_scenes] if args.max_scenes else scenes
+    if not scenes:
+        raise SystemExit(f"no .exr/.hdr scenes under {args.data} (split {args.split!r})")
+    with_method = args.method != "none"
     for proto in args.protocols:
         rows = []
-        print(f"protocol {proto}: scene, largest smooth region, oracle exact-k / PSNR, {args.method} exact-k / PSNR,")
-        print("  confidence AUC, share of errors among the 10% least confident, share wrong")
+        print(
+            f"protocol {proto}: scene, largest smooth region, oracle exact-k / rolled-over right / PSNR"
+            + (f", {args.method} exact-k / rolled-over right / PSNR," if with_method else "")
+        )
+        if with_method:
+            print("  confidence AUC, share of errors among the 10% least confident, share wrong")
         for path in scenes:
-            rgb = load(path, args.scale)
-            truth = protocol_a(rgb) if proto == "A" else protocol_b(np.broadcast_to(rgb, (3, *rgb.shape[1:])).copy())
+            truth = protocols.protocol_counts(protocols.load_scene(path, args.scale), proto).numpy()
             modulus = np.mod(truth, PERIOD)
             largest = float(np.mean([largest_smooth_region(t) for t in truth]))
             oracle = np.stack([np.mod(t, PERIOD) + PERIOD * oracle_k(t) for t in truth])
-            o_k, o_psnr = scores(oracle, truth)
-            restored, _ = restore(args.method, modulus)
-            m_k, m_psnr = scores(restored, truth)
-            c_auc, caught, wrong = confidence_scores(restored, truth)
-            level_result, level_perfect = channels_at_true_level(restored, truth)
+            o_k, o_rolled, o_psnr = scene_scores(oracle, truth, proto)
             row = {
-                "scene": path.name,
+                "scene": path.relative_to(args.data).as_posix(),
                 "largest": largest,
                 "oracle_k": o_k,
+                "oracle_rolled": o_rolled,
                 "oracle_psnr": o_psnr,
-                "k": m_k,
-                "psnr": m_psnr,
-                "conf_auc": c_auc,
-                "caught10": caught,
-                "wrong": wrong,
                 "channels": int(truth.shape[0]),
-                "level_result": level_result,
-                "level_perfect": level_perfect,
             }
+            line = f"{row['scene'][-30:]:30s} {largest:.3f} | {o_k:.3f} {o_rolled:.3f} {o_psnr:6.2f}"
+            if with_method:
+                restored, _ = restore(args.method, modulus)
+                m_k, m_rolled, m_psnr = scene_scores(restored, truth, proto)
+                c_auc, caught, wrong = confidence_scores(restored, truth)
+                level_result, level_perfect = channels_at_true_level(restored, truth)
+                row.update(
+                    k=m_k,
+                    rolled=m_rolled,
+                    psnr=m_psnr,
+                    conf_auc=c_auc,
+                    caught10=caught,
+                    wrong=wrong,
+                    level_result=level_result,
+                    level_perfect=level_perfect,
+                )
+                line += f" | {m_k:.3f} {m_rolled:.3f} {m_psnr:6.2f} | {c_auc:.3f} {caught:.2f} {wrong:.3f}"
             if args.priors:
                 for cap in TRUNCATIONS:
                     row[f"truth_over_found_T{cap}"] = truncated_energy(truth, cap) / truncated_energy(restored, cap)
+                    line += f" | T{cap} {row[f'truth_over_found_T{cap}']:.3f}"
             rows.append(row)
-            print(
-                f"{path.name[:30]:30s} {largest:.3f} | {o_k:.3f} {o_psnr:6.2f} | {m_k:.3f} {m_psnr:6.2f} | "
-                f"{c_auc:.3f} {caught:.2f} {wrong:.3f}"
-                + "".join(f" | T{c} {row[f'truth_over_found_T{c}']:.3f}" for c in TRUNCATIONS if args.priors),
-                flush=True,
-            )
+            print(line, flush=True)
+        print(json.dumps(summarize(rows, proto, args.method, args.split, args.priors)))
 
-        def mean(key: str, subset=rows) -> float:
-            values = [min(r[key], 100.0) for r in subset if np.isfinite(r[key])]
-            return float(np.mean(values)) if values else float("nan")
 
-        good = [r for r in rows if r["wrong"] < 0.1]
-        summary = {
-            "protocol": proto,
-            "method": args.method,
-            "scenes": len(rows),
-            "largest_smooth_region": mean("largest"),
-            "oracle_exact_k": mean("oracle_k"),
-            "oracle_psnr": mean("oracle_psnr"),
-            "exact_k": mean("k"),
-            "psnr": mean("psnr"),
-            "confidence_auc": mean("conf_auc"),
-            "errors_in_least_confident_10pct": mean("caught10"),
-            "channels": sum(r["channels"] for r in rows),
-            "channels_at_true_level": sum(r["level_result"] for r in rows),
-            "channels_at_true_level_if_perfect": sum(r["level_perfect"] for r in rows),
-            "scenes_under_10pct_wrong": len(good),
-            "confidence_auc_those": mean("conf_auc", good),
-            "errors_in_least_confident_10pct_those": mean("caught10", good),
-        }
-        if args.priors:
-            for cap in TRUNCATIONS:
-                key = f"truth_over_found_T{cap}"
-                summary[f"scenes_truth_energy_higher_T{cap}"] = sum(r[key] > 1 for r in rows)
-        print(json.dumps(summary))
+def summarize(rows: list[dict], protocol: str, method: str, split: str, priors: bool = False) -> dict:
+    """The means over scenes of :func:`main`'s rows (PSNR capped at 100 dB; NaN scores left out)."""
+
+    def mean(key: str, subset=rows) -> float:
+        values = [min(r[key], 100.0) for r in subset if np.isfinite(r[key])]
+        return float(np.mean(values)) if values else float("nan")
+
+    summary = {
+        "protocol": protocol,
+        "split": split,
+        "scenes": len(rows),
+        "largest_smooth_region": mean("largest"),
+        "oracle_exact_k": mean("oracle_k"),
+        "oracle_rolled_over_right": mean("oracle_rolled"),
+        "oracle_psnr": mean("oracle_psnr"),
+    }
+    if method == "none":
+        return summary
+    good = [r for r in rows if r["wrong"] < 0.1]
+    summary |= {
+        "method": method,
+        "exact_k": mean("k"),
+        "rolled_over_right": mean("rolled"),
+        "psnr": mean("psnr"),
+        "confidence_auc": mean("conf_auc"),
+        "errors_in_least_confident_10pct": mean("caught10"),
+        "channels": sum(r["channels"] for r in rows),
+        "channels_at_true_level": sum(r["level_result"] for r in rows),
+        "channels_at_true_level_if_perfect": sum(r["level_perfect"] for r in rows),
+        "scenes_under_10pct_wrong": len(good),
+        "confidence_auc_those": mean("conf_auc", good),
+        "errors_in_least_confident_10pct_those": mean("caught10", good),
+    }
+    if priors:
+        for cap in TRUNCATIONS:
+            summary[f"scenes_truth_energy_higher_T{cap}"] = sum(r[f"truth_over_found_T{cap}"] > 1 for r in rows)
+    return summary
 
 
 if __name__ == "__main__":

@@ -45,6 +45,23 @@ class TestSingleLimits:
         assert single_limits.channels_at_true_level(truth, truth) == (1, 1)
         assert single_limits.channels_at_true_level(truth + 256, truth) == (0, 1)
 
+    def test_scene_scores_count_the_rolled_over_values(self) -> None:
+        truth = _ramp()  # 5, 45, ..., 605: 9 of the 16 columns rolled over
+        assert single_limits.scene_scores(truth + 256, truth, "A") == (1.0, 1.0, float("inf"))
+        wrong = truth.copy()
+        wrong[..., -1] -= 256  # the brightest column a period low
+        k, rolled, _ = single_limits.scene_scores(wrong, truth, "A10")
+        assert k == 15 / 16 and rolled == 8 / 9
+
+    def test_summarize_the_oracle_alone(self) -> None:
+        rows = [
+            {"largest": 1.0, "oracle_k": 1.0, "oracle_rolled": r, "oracle_psnr": p}
+            for r, p in ((0.5, 30.0), (1.0, 1e9))
+        ]
+        out = single_limits.summarize(rows, "A", "none", "validation")
+        assert out["scenes"] == 2 and out["oracle_rolled_over_right"] == 0.75 and out["oracle_psnr"] == 65.0
+        assert "exact_k" not in out
+
     def test_confidence_scores_of_a_perfect_result(self) -> None:
         _, caught, wrong = single_limits.confidence_scores(_ramp(), _ramp())
         assert wrong == 0.0 and np.isnan(caught)
