@@ -16,9 +16,15 @@ over the regions joined by pairs the edge network is sure of. This asks, per spl
 - **large wrong regions**: for every region of at least 0.1% of a plane that the result puts at another level than
   the oracle, the change of the level costs and of the pair costs when that region alone moves to the oracle's
   level; the share of their pixels where both, one or none favour the truth.
+- **border of the main wrong level** (``--borders``): per plane where the most common wrong offset covers at least
+  5% of the values, the pairs between those values and the right ones: on how many the edge network's most likely
+  jump is the truth's and on how many the result's, the summed costs ``-log p`` of the truth's jumps and of the
+  result's, and how many of the pairs are true steps below half a period (the crossings the smooth-step oracle of
+  ``research/single_limits.py`` takes) and read as such (most likely jump = the truth's).
 
     python -m research.level_errors --split train            # the 26 training scenes, protocols A, A10 and B
     python -m research.level_errors --split validation --protocols A
+    python -m research.level_errors --split validation --borders   # also a line per plane with a large wrong level
 
 Each plane's scores are aligned by its most common offset, as ``protocols.score_scene`` does; means over scenes.
 """
@@ -84,6 +90,63 @@ def energy(m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, u
     return level, float(sum(c.sum() for c in costs))
 
 
+def pair_jumps(m: np.ndarray, k: np.ndarray) -> list[np.ndarray]:
+    """Per direction (right, down), the jump ``n`` of every pair under ``k``: ``I_j - I_i = w(m_j - m_i) + n 2^N``."""
+    out = []
+    for a, b in _DIRECTIONS:
+        wd = np.mod(m[b] - m[a] + PERIOD // 2, PERIOD) - PERIOD // 2
+        out.append((m[b] + PERIOD * k[b] - m[a] - PERIOD * k[a] - wd) // PERIOD)
+    return out
+
+
+#: ``border_report`` looks at planes whose most common wrong offset covers at least this share of the values.
+BORDER_SHARE = 0.05
+
+
+def border_report(
+    m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, truth: np.ndarray
+) -> dict[str, float] | None:
+    """The pairs between the values at the result's most common wrong offset and the right ones (None when that
+    offset covers less than :data:`BORDER_SHARE` of the plane): what the edge network says at that border.
+
+    Args:
+        m: (H, W) moduli; ``k``: the result's (H, W) rollover counts; ``table``, ``first``: the band of jump costs
+            (``table[d, BAND]`` is the most likely jump's, ``first + BAND`` that jump); ``truth``: (H, W) true counts.
+
+    Returns:
+        ``share`` and ``offset`` of the wrong level, ``pairs`` on its border, ``net picks truth`` / ``net picks
+        result`` (the most likely jump is the truth's / the result's), ``truth cost`` / ``result cost`` (sums of
+        ``-log p`` over the border, :data:`_MAX_COST` outside the band), ``small steps`` (true steps below half a
+        period) and ``small steps read`` (those whose most likely jump is the truth's).
+    """
+    true_k = truth // PERIOD
+    d = k - true_k
+    d -= offset(d)
+    values, counts = np.unique(d[d != 0], return_counts=True)
+    if not counts.size or counts.max() < BORDER_SHARE * d.size:
+        return None
+    wrong = int(values[counts.argmax()])
+    aligned = true_k - offset(k - true_k)  # the truth at the result's offset: same pair jumps as the truth
+    costs_truth = _pair_costs(m, aligned, table, first, PERIOD, 0, 0)
+    costs_result = _pair_costs(m, k, table, first, PERIOD, 0, 0)
+    out = {"share": float(counts.max() / d.size), "offset": wrong}
+    sums = defaultdict(float)
+    jumps_truth, jumps_result = pair_jumps(m, true_k), pair_jumps(m, k)
+    for direction, (a, b) in enumerate(_DIRECTIONS):
+        jt, jr = jumps_truth[direction], jumps_result[direction]
+        border = ((d[a] == 0) & (d[b] == wrong)) | ((d[a] == wrong) & (d[b] == 0))
+        likely = first[direction][a] + BAND
+        small = border & (np.abs(truth[b] - truth[a]) < PERIOD // 2)
+        sums["pairs"] += int(border.sum())
+        sums["net picks truth"] += int((border & (likely == jt)).sum())
+        sums["net picks result"] += int((border & (likely == jr)).sum())
+        sums["truth cost"] += float(costs_truth[direction][border].sum())
+        sums["result cost"] += float(costs_result[direction][border].sum())
+        sums["small steps"] += int(small.sum())
+        sums["small steps read"] += int((small & (likely == jt)).sum())
+    return out | sums
+
+
 def plane_report(
     m: np.ndarray,
     tree: np.ndarray,
@@ -140,6 +203,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--split", default="train", choices=protocols.SPLITS)
     ap.add_argument("--protocols", nargs="+", default=["A", "A10", "B"], choices=list(protocols.PROTOCOL_PEAKS))
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--borders", action="store_true", help="a line per plane whose main wrong level is large")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     net, levels = load_model(), load_levels()
@@ -160,6 +224,21 @@ def main(argv: list[str] | None = None) -> None:
                 )
                 for key, value in report.items():
                     scene[key] += value
+                if args.borders:
+                    first = jump[c].astype(np.int64) - BAND
+                    moved = region_moves(m, tree, cost[c], first, u[c], BITS)  # the package's default
+                    border = border_report(m, moved, cost[c], first, t)
+                    if border is not None:
+                        print(
+                            f"{proto} {path.parent.name}/{path.name} plane {c}: {100 * border['share']:.1f}% of the "
+                            f"values at offset {border['offset']:+d}; {border['pairs']:.0f} border pairs, the "
+                            f"network's most likely jump is the truth's on {border['net picks truth']:.0f} and the "
+                            f"result's on {border['net picks result']:.0f}; costs of the truth's jumps "
+                            f"{border['truth cost']:.0f}, of the result's {border['result cost']:.0f}; "
+                            f"{border['small steps']:.0f} true steps below half a period, "
+                            f"{border['small steps read']:.0f} of them read so",
+                            flush=True,
+                        )
             scene["planes"] = moduli.shape[0]
             per_scene.append(scene)
             for key, value in scene.items():

@@ -58,3 +58,26 @@ def test_plane_report_counts_values_by_true_level_and_at_the_clip() -> None:
     flat[0] = 0.5
     out = level_errors.plane_report(m, np.zeros_like(m), table, first, flat, truth, peak=float(truth.max()))
     assert out["right at k 0"] + out["right at k 1"] == 24 and out["clipped right"] == out["right at k 1"]
+
+
+def test_border_report_of_a_bright_region_put_a_period_low() -> None:
+    # rows of 100 ... 100, 200, 300, 400: the last two values roll over once, through steps of 100 (below half a
+    # period); a result of k = 0 everywhere puts them a period low, crossing the border with a jump of -1.
+    truth = np.tile(np.array([100, 100, 100, 100, 100, 200, 300, 400]), (6, 1))
+    m = truth % 256
+    table = np.full((2, 5, 6, 8), 30.0)
+    table[:, 2] = 0.0  # the network is sure of every wrapped step (jump 0: first + 2)
+    first = np.full((2, 6, 8), -2)
+    out = level_errors.border_report(m, np.zeros_like(m), table, first, truth)
+    assert out["share"] == 0.25 and out["offset"] == -1
+    assert out["pairs"] == 6 and out["net picks truth"] == 6 and out["net picks result"] == 0
+    assert out["truth cost"] == 0.0 and out["result cost"] == 6 * 30.0
+    assert out["small steps"] == out["small steps read"] == 6
+    assert level_errors.border_report(m, truth // 256, table, first, truth) is None  # nothing wrong
+
+
+def test_pair_jumps_are_the_whole_periods_beyond_the_wrapped_step() -> None:
+    m = np.array([[200, 10]])
+    right, down = level_errors.pair_jumps(m, np.array([[0, 1]]))
+    assert right.tolist() == [[0]] and down.shape == (0, 2)  # 266 - 200 = 66: the wrapped step
+    assert level_errors.pair_jumps(m, np.array([[0, 2]]))[0].tolist() == [[1]]
