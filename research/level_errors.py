@@ -126,8 +126,7 @@ def border_report(
     if not counts.size or counts.max() < BORDER_SHARE * d.size:
         return None
     wrong = int(values[counts.argmax()])
-    aligned = true_k - offset(k - true_k)  # the truth at the result's offset: same pair jumps as the truth
-    costs_truth = _pair_costs(m, aligned, table, first, PERIOD, 0, 0)
+    costs_truth = _pair_costs(m, true_k, table, first, PERIOD, 0, 0)  # a pair's cost depends on its jump alone
     costs_result = _pair_costs(m, k, table, first, PERIOD, 0, 0)
     out = {"share": float(counts.max() / d.size), "offset": wrong}
     sums = defaultdict(float)
@@ -155,11 +154,14 @@ def plane_report(
     u: np.ndarray,
     truth: np.ndarray,
     peak: float | None = None,
+    moved: np.ndarray | None = None,
 ):
     """The numbers of one plane (a dict of sums and counts); ``u``: (L, H, W) level costs, one per pixel; ``peak``:
-    the protocol's largest count (the values there were clipped)."""
+    the protocol's largest count (the values there were clipped); ``moved``: the region moves' result from ``tree``,
+    when the caller has it already."""
     true_k = truth // PERIOD
-    moved = region_moves(m, tree, table, first, u, BITS, block=1)
+    if moved is None:
+        moved = region_moves(m, tree, table, first, u, BITS, block=1)
     wrong = (moved - true_k) != offset(moved - true_k)
     out = {"values": m.size, "wrong": int(wrong.sum())}
     by_level = np.minimum(true_k, TOP_LEVEL).ravel()
@@ -219,14 +221,13 @@ def main(argv: list[str] | None = None) -> None:
                 m, t = moduli[c].numpy(), truth[c].numpy()
                 pixels = u[c].repeat(2, axis=1).repeat(2, axis=2)[:, : m.shape[0], : m.shape[1]]  # a cost per pixel
                 tree = decode_jumps(m, jump[c], cost[c, :, BAND], BITS)[0]
-                report = plane_report(
-                    m, tree, cost[c], jump[c].astype(np.int64) - BAND, pixels, t, protocols.PROTOCOL_PEAKS[proto]
-                )
+                first = jump[c].astype(np.int64) - BAND
+                # the default's result (the same k as the package's costs per 2 x 2 block with block=2)
+                moved = region_moves(m, tree, cost[c], first, pixels, BITS, block=1)
+                report = plane_report(m, tree, cost[c], first, pixels, t, protocols.PROTOCOL_PEAKS[proto], moved)
                 for key, value in report.items():
                     scene[key] += value
                 if args.borders:
-                    first = jump[c].astype(np.int64) - BAND
-                    moved = region_moves(m, tree, cost[c], first, u[c], BITS)  # the package's default
                     border = border_report(m, moved, cost[c], first, t)
                     if border is not None:
                         print(
