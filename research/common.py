@@ -37,13 +37,14 @@ PERIOD = 2**BITS
 PEAK = 4095.0
 
 
-def select_scenes(data: Path, max_scenes: int = 0) -> list[Path]:
-    """The .exr/.hdr files under ``data`` sorted by path (the first ``max_scenes`` when > 0); exits if none."""
-    scenes = protocols.list_scenes(data)
+def select_scenes(data: Path, max_scenes: int = 0, split: str = "all") -> list[Path]:
+    """The .exr/.hdr files under ``data`` sorted by path, on one side of the ``split`` (``protocols.SPLITS``; the first
+    ``max_scenes`` when > 0); exits if none."""
+    scenes = protocols.list_scenes(data, split)
     if max_scenes:
         scenes = scenes[:max_scenes]
     if not scenes:
-        raise SystemExit(f"no .exr/.hdr scenes under {data}")
+        raise SystemExit(f"no .exr/.hdr scenes under {data} (split {split!r})")
     return scenes
 
 

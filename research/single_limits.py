@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from research.common import BITS, DATA, PERIOD, aligned, run_method
+from research.common import BITS, DATA, PERIOD, aligned, run_method, select_scenes
 from torch_modulo import protocols
 from torch_modulo._argtypes import nonnegative_int, positive_int
 from torch_modulo.singleshot import unwrap_confidence
@@ -174,10 +174,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.priors and args.method == "none":
         parser.error("--priors compares the method's result with the truth: it needs a --method other than none")
-    scenes = protocols.list_scenes(args.data, args.split)
-    scenes = scenes[: args.max_scenes] if args.max_scenes else scenes
-    if not scenes:
-        raise SystemExit(f"no .exr/.hdr scenes under {args.data} (split {args.split!r})")
+    scenes = select_scenes(args.data, args.max_scenes, args.split)
     with_method = args.method != "none"
     for proto in args.protocols:
         rows = []
