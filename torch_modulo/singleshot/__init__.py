@@ -7,7 +7,7 @@ the methods of :data:`METHODS`:
   neighbour pair, the channels of a colour image seen together; an exact integer decoder (most likely spanning
   tree, optionally min-cut moves) turns it into ``k`` (:mod:`torch_modulo.singleshot.learned`); a small head's
   level costs (per 2 x 2 block) then move whole regions by whole periods (option ``levels``,
-  :mod:`torch_modulo.singleshot.levels`). The network runs on the input's device, the decoding on the CPU.
+  :mod:`torch_modulo.singleshot.learned.levels`). The network runs on the input's device, the decoding on the CPU.
 - ``"guided"``: reliability-guided path following (Herraez et al. 2002) without a graph cut, the channels of a
   colour image on one shared tree, so that a step that is steep in one channel is avoided in all
   (:mod:`torch_modulo.singleshot.pathfollow`); several times faster than ``"learned"`` on the CPU. Under strong
@@ -22,10 +22,11 @@ the methods of :data:`METHODS`:
   rounds of reweighting, then snapped to ``I_m + k 2^N``; in torch on the input's device, the whole batch at once
   (:mod:`torch_modulo.singleshot.lsq`).
 
-Methods are entries of :data:`torch_modulo.singleshot.methods.REGISTRY` (solver, options, whether the channels of
-an image are solved together). The images and channels of a batch are solved in worker processes
-(:mod:`torch_modulo.singleshot.workers`), except by the methods with a tensor solver (``"lsq"``, ``"learned"``),
-which solve the batch on its device. docs/singleshot.md has the measurements.
+:func:`unwrap_single` and :class:`SingleShotUnwrap` live in :mod:`torch_modulo.singleshot.unwrap`. Methods are
+entries of :data:`torch_modulo.singleshot.methods.REGISTRY` (solver, options, whether the channels of an image are
+solved together; the shared types in :mod:`torch_modulo.singleshot.spec`). The images and channels of a batch are
+solved in worker processes (:mod:`torch_modulo.singleshot.workers`), except by the methods with a tensor solver
+(``"lsq"``, ``"learned"``), which solve the batch on its device. docs/singleshot.md has the measurements.
 
 Unwrapping fixes ``k`` up to one constant per image and channel; the output puts the darkest large connected
 region at ``k = 0`` and no pixel below it (``k >= 0``, :mod:`torch_modulo.singleshot.anchor`).
@@ -35,33 +36,16 @@ region at ``k = 0`` and no pixel below it (``k >= 0``, :mod:`torch_modulo.single
 
 from __future__ import annotations
 
-import warnings
-from dataclasses import dataclass, field
-from typing import Any
-
-import numpy as np
-import torch
-from torch import nn
-
-from torch_modulo._checks import (
-    MAX_BITS,
-    check_bits,
-    check_flag,
-    check_floating,
-    check_image_shape,
-    check_modulus,
-    check_nonempty_image,
-    check_tensor,
-)
-from torch_modulo.cfa import check_cfa, interpolate_wrapped, mosaic
 from torch_modulo.singleshot.confidence import UnwrapConfidence, unwrap_confidence
 from torch_modulo.singleshot.energy import Potential, UnwrapEnergy, is_representable, potential, unwrap_energy
-from torch_modulo.singleshot.learned import learned_confidence, mosaic_spec
-from torch_modulo.singleshot.methods import METHODS, REGISTRY, SolverSpec, make_spec, solve_on_device
-from torch_modulo.singleshot.workers import check_workers, run_planes, shutdown_workers
+from torch_modulo.singleshot.learned import LearnedConfidence, learned_confidence
+from torch_modulo.singleshot.methods import METHODS
+from torch_modulo.singleshot.unwrap import SingleShotInfo, SingleShotUnwrap, unwrap_single
+from torch_modulo.singleshot.workers import shutdown_workers
 
 __all__ = [
     "METHODS",
+    "LearnedConfidence",
     "Potential",
     "SingleShotInfo",
     "SingleShotUnwrap",
@@ -75,273 +59,3 @@ __all__ = [
     "unwrap_energy",
     "unwrap_single",
 ]
-
-
-@dataclass
-class SingleShotInfo:
-    """What the solver did, per image and channel (the data of the paper's Fig. 5b and 6).
-
-    Everything is indexed ``[b][c]``; an unbatched (C, H, W) input counts as ``B = 1`` and an (H, W) input as
-    ``B = C = 1``.
-
-    Attributes:
-        energies: ``energies[b][c]`` lists the energy (Eq. 3) before the first move and after every accepted
-            move.
-        iterations: (B, C) int64, accepted moves.
-        cuts: (B, C) int64, minimum cuts solved (accepted or not).
-        energy: (B, C) float64, the energy of the returned image (it can differ from the last entry of
-            ``energies`` when anchoring clipped a few pixels below the darkest region to ``k = 0``).
-        seconds: (B, C) float64, wall time per plane.
-        method: the method used.
-        confidence: per-value confidence in ``(0, 1]`` from the same run, with the shape, dtype and device of the
-            output, for the methods that give one (``"learned"``: the map of
-            :func:`~torch_modulo.learned_confidence`, of the spanning tree before any ``max_cuts`` or ``levels``
-            moves; of a mosaic, that of its interpolated guide at each photosite), else None.
-    """
-
-    energies: list[list[list[float]]] = field(default_factory=list)
-    iterations: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.int64))
-    cuts: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.int64))
-    energy: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.float64))
-    seconds: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 0, dtype=torch.float64))
-    method: str = "learned"
-    confidence: torch.Tensor | None = None
-
-
-def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tuple[torch.Tensor, SingleShotInfo]:
-    """Check the tensor, solve its planes (in workers when that pays) and assemble the output and the info."""
-    check_tensor(modulus, "modulus")
-    check_floating(modulus, "modulus")
-    check_image_shape(modulus, "modulus", 2, 4)
-    check_bits(spec.params.bits, modulus.dtype)
-    check_nonempty_image(modulus, "modulus")
-    h, w = modulus.shape[-2:]
-    check_modulus(modulus, spec.params.bits)
-    lead = (1, 1, *modulus.shape)[-4:-2]  # (B, C), with B = 1 and C = 1 filled in for unbatched inputs
-    b, c = int(lead[0]), int(lead[1])
-    batch = modulus.reshape(b, c, h, w)
-    if REGISTRY[spec.method].solve_tensor is not None:  # solved where the tensor lies, anchored on the CPU
-        results = solve_on_device(batch, spec)
-    else:
-        # One int64 copy, whose planes the tasks view (no float64 copy, no stacked copy).
-        planes = batch.detach().to("cpu").to(torch.int64).reshape(b * c, h, w).numpy()
-        results = run_planes(planes, spec, workers, group=c if REGISTRY[spec.method].joint_channels else 1)
-        del planes
-    # Filled plane by plane, in the output's dtype: no stacked int64 or float64 copy of the whole batch.
-    restored = torch.empty(len(results), h, w, dtype=modulus.dtype)
-    for plane, (r, _) in zip(restored, results, strict=True):
-        plane.copy_(torch.from_numpy(r.astype(np.float64)))
-    peak = max((float(r.max()) for r, _ in results if r.size), default=0.0)
-    limit = 2 ** MAX_BITS.get(modulus.dtype, 53)  # every integer up to it, not all of those above
-    if peak > limit:
-        warnings.warn(
-            f"restored counts reach {peak:.0f}, beyond what {modulus.dtype} holds exactly ({limit}); "
-            "use float32 or float64 for exact counts",
-            stacklevel=3,
-        )
-    out = restored.reshape(modulus.shape).to(device=modulus.device)
-    infos = [i for _, i in results]
-
-    def grid(key: str, dtype: torch.dtype) -> torch.Tensor:
-        return torch.tensor([i[key] for i in infos], dtype=dtype).reshape(b, c)
-
-    info = SingleShotInfo(
-        energies=[[infos[bi * c + ci]["energies"] for ci in range(c)] for bi in range(b)],
-        iterations=torch.tensor([len(i["steps"]) for i in infos], dtype=torch.int64).reshape(b, c),
-        cuts=grid("cuts", torch.int64),
-        energy=grid("energy", torch.float64),
-        seconds=grid("seconds", torch.float64),
-        method=spec.method,
-    )
-    if infos and all("confidence" in i for i in infos):
-        maps = torch.from_numpy(np.stack([i["confidence"] for i in infos]))
-        info.confidence = maps.to(dtype=modulus.dtype).reshape(modulus.shape).to(device=modulus.device)
-    return out, info
-
-
-def _solve_mosaic(
-    modulus: torch.Tensor, spec: SolverSpec, workers: int | None, cfa: str
-) -> tuple[torch.Tensor, SingleShotInfo]:
-    """Unwrap a mosaic of the colour filter array ``cfa``: its wrapped RGB interpolated on the circle, solved at full
-    resolution as one colour image, then the photosites' own rollover counts."""
-    check_cfa(cfa)
-    check_floating(modulus, "modulus")
-    check_image_shape(modulus, "modulus", 2, 4)
-    check_nonempty_image(modulus, "modulus")
-    if modulus.dim() > 2 and modulus.shape[-3] != 1:
-        raise ValueError(
-            f"modulus must be a mosaic with cfa={cfa!r}, (B, 1, H, W), (1, H, W) or (H, W); got {tuple(modulus.shape)}"
-        )
-    guide = interpolate_wrapped(modulus if modulus.dim() > 2 else modulus[None], cfa, spec.params.bits)
-    out, info = _solve(guide, mosaic_spec(spec), workers)
-    if info.confidence is not None:
-        info.confidence = mosaic(info.confidence, cfa).reshape(modulus.shape)
-    return mosaic(out, cfa).reshape(modulus.shape), info
-
-
-def unwrap_single(
-    modulus: torch.Tensor,
-    bits: int = 8,
-    *,
-    method: str = "learned",
-    neighborhood: int = 8,
-    a1: float = 0.1,
-    a2: float = 1e-5,
-    x0: float | None = None,
-    sigma: int = 2,
-    max_iter: int = 1000,
-    workers: int | None = None,
-    return_info: bool = False,
-    cfa: str | None = None,
-    **options: Any,
-) -> torch.Tensor | tuple[torch.Tensor, SingleShotInfo]:
-    """Recover the counts from one modulus image (paper Sec. 4, Eqs. 3-5).
-
-    ``"paper"`` and ``"fast"`` minimise ``C(k) = sum V(I_i - I_j)`` over neighbour pairs of ``I = I_m + k 2**bits``
-    with binary moves ``k <- k + delta`` (one s-t minimum cut each, PyMaxflow); ``"learned"`` (default) follows the
-    pairs a trained network is surest of, ``"guided"`` the most reliable paths by second differences. Then ``k``
-    is anchored: the darkest connected region holding at least 3% of the pixels (or 0.1% with mostly smooth
-    borders) gets ``k = 0`` and nothing is left below it (``k >= 0``). Images are independent problems, and so are
-    channels for the graph-cut methods; ``"guided"``, ``"fast"`` and ``"paper"`` solve them in parallel worker
-    processes, ``"learned"`` and ``"lsq"`` the batch in this process, on its device. The energy settings
-    (``neighborhood``, ``a1``, ``a2``, ``x0``) and ``sigma``, ``max_iter`` steer the graph-cut methods; for
-    ``"learned"`` and ``"guided"`` they only define the energy reported.
-
-    Args:
-        modulus: integer-valued floating tensor in ``[0, 2**bits)``, shape (B, C, H, W), (C, H, W) or (H, W),
-            on any device.
-        bits: sensor bit depth ``N``.
-        method: one of :data:`METHODS`: ``"learned"`` (default: a small network's jump probabilities per
-            neighbour pair, the channels of an image together, decoded exactly:
-            :mod:`torch_modulo.singleshot.learned`), ``"guided"`` (path following without a graph cut, the channels
-            of an image together), ``"fast"`` (the paper's energy and moves on a cheaper schedule) or ``"paper"``
-            (the published algorithm as printed, from ``k = 0``); ``"lsq"`` (least squares with the DCT and
-            reweighting, in torch on ``modulus``'s device).
-        neighborhood: 8 (the paper) or 4.
-        a1: slope of the linear part of ``V`` (Eq. 5).
-        a2: curvature of the quadratic part of ``V``.
-        x0: breakpoint of ``V``; ``None`` means ``2**(bits - 1)``.
-        sigma: the larger step tried when step-1 moves stop helping (paper: 2; 1 disables it).
-        max_iter: the most global minimum cuts per plane.
-        workers: worker processes; ``None`` uses ``min(planes, os.cpu_count())`` when the job is large enough to
-            pay for a pool, else runs in-process; 1 always runs in-process, and so does any value inside a
-            daemonic process (a DataLoader worker, say). Scripts that use a pool need the usual
-            ``if __name__ == "__main__":`` guard. ``"learned"`` (the default) and ``"lsq"`` use none: they solve the
-            batch in this process, on its device (``workers`` is ignored).
-        return_info: also return a :class:`SingleShotInfo` (energy per iteration, iteration counts, timings; for
-            ``"learned"`` the confidence map of the same run, :attr:`SingleShotInfo.confidence`).
-        cfa: None, or the colour filter array of a mosaic (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``):
-            ``modulus`` is then (B, 1, H, W), (1, H, W) or (H, W) with an even height and width. Its wrapped colours
-            are interpolated on the circle to full resolution (:func:`torch_modulo.cfa.interpolate_wrapped`), that
-            RGB image is unwrapped (the methods that solve channels together share one tree across the colours),
-            and the restored mosaic keeps each photosite's own count; the info has one entry per colour (C = 3).
-            ``"learned"`` then runs 4 min-cut moves after its tree and no level moves unless ``max_cuts`` or
-            ``levels`` is given (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`).
-            Demosaic the restored counts (:func:`torch_modulo.cfa.demosaic`), never the modulus.
-        **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
-            ``"auto"``), ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase),
-            ``tile_pixels`` (default ``2**22``: larger images are solved in overlapping tiles of at most that many
-            pixels, stitched on their overlaps, :mod:`torch_modulo.singleshot.tiles`; 0 never tiles).
-            ``"guided"``: ``colour`` (default True: the channels of an image share one tree; False: each channel
-            alone), ``denoise`` (default 0: the standard deviation in pixels of a Gaussian applied to the wrapped
-            image's phasor first; about 0.7 for frames with noise in the low bits), ``tile_pixels`` (default
-            ``2**22``: larger images build their spanning tree in blocks of at most that many pixels, which needs
-            less memory and gives a minimum spanning tree of the same pairs; 0: the whole image at once).
-            ``"learned"``: ``weights`` (default None: the weights shipped in the package; or a weights file),
-            ``levels`` (default True: a small head's level costs move whole regions after the tree,
-            :mod:`torch_modulo.singleshot.levels`; a path: a level weights file; False: no level moves, faster;
-            docs/singleshot.md has the numbers), ``max_cuts`` (default 0, 4 on a mosaic: the most likely tree
-            alone; more: binary moves weighing every pair's probability after it, before the level moves),
-            ``augment`` (default False: True averages the network over the image's four flips), ``tile`` (default
-            768: the network and its level head predict tiles of that side with their context, which bounds
-            memory; 0: the whole image). ``"lsq"``:
-            ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),
-            ``cg_iterations`` (default 10: conjugate-gradient steps per round), ``colour`` (default True: the
-            channels of an image share their weights; False: each channel alone).
-
-    Returns:
-        The restored counts ``I_m + k 2**bits``: same shape, dtype and device as ``modulus``; with
-        ``return_info=True`` a tuple ``(restored, info)``.
-
-    Raises:
-        TypeError: ``modulus`` is not a floating tensor, or an argument has the wrong type.
-        ValueError: values outside ``[0, 2**bits)``, NaN or non-integer values, an empty image, a wrong number
-            of dimensions, or an invalid setting.
-
-    Example:
-        >>> ramp = torch.arange(0.0, 1200.0, 40.0).reshape(1, -1).repeat(4, 1)  # counts 0 .. 1160
-        >>> restored = unwrap_single(ramp % 256, bits=8)
-        >>> bool(torch.equal(restored, ramp))
-        True
-    """
-    spec = make_spec(bits, method, neighborhood, a1, a2, x0, sigma, max_iter, options)
-    check_flag(return_info, "return_info")
-    workers = check_workers(workers)
-    out, info = _solve(modulus, spec, workers) if cfa is None else _solve_mosaic(modulus, spec, workers, cfa)
-    return (out, info) if return_info else out
-
-
-class SingleShotUnwrap(nn.Module):
-    """Module twin of :func:`unwrap_single` (paper Sec. 4). Not differentiable (the output is a choice of ``k``).
-
-    Args:
-        bits: sensor bit depth ``N``.
-        method: one of :data:`METHODS` (see :func:`unwrap_single`); ``"learned"`` by default.
-        neighborhood: 8 (the paper) or 4.
-        a1: slope of the linear part of ``V``.
-        a2: curvature of the quadratic part of ``V``.
-        x0: breakpoint of ``V``; ``None`` means ``2**(bits - 1)``.
-        sigma: the larger step (paper: 2).
-        max_iter: the most global minimum cuts per plane.
-        workers: worker processes (see :func:`unwrap_single`).
-        cfa: None, or the colour filter array of mosaicked input (see :func:`unwrap_single`).
-        **options: method options (see :func:`unwrap_single`).
-
-    Shape:
-        - Input: (B, C, H, W), (C, H, W) or (H, W).
-        - Output: same as the input.
-
-    Example:
-        >>> unwrap = SingleShotUnwrap(bits=8)
-        >>> unwrap(torch.tensor([[200.0, 250.0, 44.0, 94.0]]))  # counts 200, 250, 300, 350
-        tensor([[200., 250., 300., 350.]])
-    """
-
-    def __init__(
-        self,
-        bits: int = 8,
-        *,
-        method: str = "learned",
-        neighborhood: int = 8,
-        a1: float = 0.1,
-        a2: float = 1e-5,
-        x0: float | None = None,
-        sigma: int = 2,
-        max_iter: int = 1000,
-        workers: int | None = None,
-        cfa: str | None = None,
-        **options: Any,
-    ) -> None:
-        super().__init__()
-        self.spec = make_spec(bits, method, neighborhood, a1, a2, x0, sigma, max_iter, options)
-        self.workers = check_workers(workers)
-        self.bits = self.spec.params.bits
-        self.method = method
-        self.cfa = check_cfa(cfa) if cfa is not None else None
-
-    def forward(self, modulus: torch.Tensor) -> torch.Tensor:
-        p = self.spec.params
-        return unwrap_single(
-            modulus,
-            p.bits,
-            method=self.spec.method,
-            neighborhood=self.spec.neighborhood,
-            a1=p.a1,
-            a2=p.a2,
-            x0=p.x0,
-            sigma=self.spec.sigma,
-            max_iter=self.spec.max_iter,
-            workers=self.workers,
-            cfa=self.cfa,
-            **dict(self.spec.options),
-        )

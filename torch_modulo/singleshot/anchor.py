@@ -80,6 +80,7 @@ def anchor_k(
         candidates = candidates[candidates <= big[0]]
     small = candidates[level_size[candidates] < large]
     if small.size:  # the border test, only where a level needs it (``1 << (bits - 1)`` only then)
+        assert bits is not None  # checked with the modulus above
         smooth = _smooth_borders(labels, count, restored, 1 << (bits - 1))
         passing = small[smooth[largest[small]]]
         if passing.size:
@@ -120,7 +121,7 @@ def _smooth_borders(labels: np.ndarray, count: int, restored: np.ndarray, half: 
     smooth = np.zeros(count + 1, dtype=np.int64)
     border = np.zeros(count + 1, dtype=np.int64)
     for off in ((0, 1), (1, 0)):
-        first, second = pair_slices(*labels.shape, off)
+        first, second = pair_slices(labels.shape[0], labels.shape[1], off)
         leaving = labels[first] != labels[second]
         ends = (labels[first][leaving], labels[second][leaving])
         small = np.abs(restored[first][leaving] - restored[second][leaving]) < half

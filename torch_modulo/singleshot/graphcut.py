@@ -39,13 +39,13 @@ decomposition) and :func:`add_terminals` are the building blocks, public for sol
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import maxflow
 import numpy as np
 
 from torch_modulo.singleshot.energy import EnergyParams, energy_np, potential_np
 from torch_modulo.singleshot.grid import dilate, pair_slices
+from torch_modulo.singleshot.spec import MoveStats
 
 __all__ = [
     "MoveStats",
@@ -62,38 +62,6 @@ __all__ = [
 #: A lookup table of pair terms is used when the range of differences is at most this many entries
 #: (or at most 4 entries per pixel pair, whichever is larger); beyond it the terms are computed directly.
 _TABLE_LIMIT = 1 << 20
-
-
-@dataclass
-class MoveStats:
-    """What a solver did on one plane: the data of the paper's Fig. 5b and 6.
-
-    Attributes:
-        energies: the energy before the first move and after every accepted move.
-        steps: the step (1 or ``sigma``) of every accepted move.
-        cuts: the number of minimum cuts solved (accepted or not).
-        nodes: the number of graph nodes of every cut.
-        seconds: wall time spent, per stage name.
-        stop: why the last global phase stopped: ``"converged"`` (no move with step 1 or ``sigma`` lowers the
-            energy: the paper's rule), ``"rel_tol"`` or ``"max_iter"``.
-    """
-
-    energies: list[float] = field(default_factory=list)
-    steps: list[int] = field(default_factory=list)
-    cuts: int = 0
-    nodes: list[int] = field(default_factory=list)
-    seconds: dict[str, float] = field(default_factory=dict)
-    stop: str = ""
-
-    @property
-    def iterations(self) -> int:
-        """Accepted moves."""
-        return len(self.steps)
-
-    def tick(self, stage: str, start: float) -> float:
-        now = time.perf_counter()
-        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - start
-        return now
 
 
 class PairTerms:

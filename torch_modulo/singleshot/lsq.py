@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from torch_modulo._checks import check_flag, check_int
+from torch_modulo.singleshot.spec import MoveStats, SolverSpec
 
 __all__ = [
     "LSQ_OPTIONS",
@@ -334,7 +335,7 @@ LSQ_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
 }
 
 
-def solve_lsq_tensor(moduli: torch.Tensor, spec: Any) -> tuple[torch.Tensor, None]:
+def solve_lsq_tensor(moduli: torch.Tensor, spec: SolverSpec) -> tuple[torch.Tensor, None]:
     """The registry's tensor solver: (B, C, H, W) moduli on any device to int64 ``k`` there (not anchored), and no
     confidence.
 
@@ -350,17 +351,13 @@ def solve_lsq_tensor(moduli: torch.Tensor, spec: Any) -> tuple[torch.Tensor, Non
     return k, None
 
 
-def solve_lsq(moduli: np.ndarray, spec: Any, stats: list[Any]) -> np.ndarray:
+def solve_lsq(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
     """The registry's group solver (numpy in and out, on the CPU): (G, H, W) int64 moduli, taken as the channels of
     one image, to restored counts (not anchored). :func:`~torch_modulo.singleshot.unwrap_single` uses
     :func:`solve_lsq_tensor` instead, on the input's device."""
-    from torch_modulo.singleshot.graphcut import plane_energy
-    from torch_modulo.singleshot.grid import pair_offsets
-
     start = time.perf_counter()
     k = solve_lsq_tensor(torch.from_numpy(np.asarray(moduli, dtype=np.float64))[None], spec)[0][0]
     restored = moduli + spec.params.period * k.numpy()
-    for plane, st in zip(restored, stats, strict=True):
-        st.energies.append(plane_energy(plane, spec.params, pair_offsets(spec.neighborhood)))
+    for st in stats:
         st.tick("lsq", start)
     return restored

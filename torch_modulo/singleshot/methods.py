@@ -1,14 +1,15 @@
 """The single-shot methods by name: one registry entry per method, and the task that solves a group of planes.
 
-A method is a :class:`Method`: its solver, its options (each with a default and a check) and whether it solves
-the channels of an image together. :data:`REGISTRY` maps names to methods, and everything else (the option
-checks of :func:`~torch_modulo.singleshot.unwrap_single`, the grouping of planes into worker tasks,
-:data:`METHODS`) is derived from it, so a new method is one entry here.
+A method is a :class:`~torch_modulo.singleshot.spec.Method`: its solver, its options (each with a default and a
+check) and whether it solves the channels of an image together. :data:`REGISTRY` maps names to methods, and
+everything else (the option checks of :func:`~torch_modulo.singleshot.unwrap_single`, the grouping of planes into
+worker tasks, :data:`METHODS`) is derived from it, so a new method is one entry here.
 
 A solver takes a group of planes: ``(moduli (G, H, W) int64, spec, one MoveStats per plane) -> restored
 (G, H, W) int64``, where the group is one plane for the methods that solve every channel alone and all channels
 of an image for the methods with ``joint_channels``. It may leave ``k`` with any global constant:
-:func:`solve_group` anchors every plane afterwards (:func:`~torch_modulo.singleshot.anchor.anchor_k`).
+:func:`solve_group` anchors every plane afterwards (:func:`~torch_modulo.singleshot.anchor.anchor_k`) and records
+the energy of every plane whose solver made no moves, so that every plane's info holds its energy.
 
 A method may also have a tensor solver, ``(moduli (B, C, H, W) floating tensor, spec) -> (k (B, C, H, W) int64,
 confidence (B, C, H, W) or None)`` on the input's device (``solve_tensor``):
@@ -20,7 +21,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
@@ -30,20 +30,24 @@ import torch
 from torch_modulo._checks import check_choice, check_flag, check_int, check_real
 from torch_modulo.singleshot.anchor import anchor_k
 from torch_modulo.singleshot.energy import EnergyParams
-from torch_modulo.singleshot.graphcut import MoveStats, plane_energy, solve_fast, solve_pixels
+from torch_modulo.singleshot.graphcut import plane_energy, solve_fast, solve_pixels
 from torch_modulo.singleshot.grid import pair_offsets
-from torch_modulo.singleshot.learned import LEARNED_OPTIONS, solve_learned, solve_learned_tensor
+from torch_modulo.singleshot.learned.solver import LEARNED_OPTIONS, solve_learned, solve_learned_tensor
 from torch_modulo.singleshot.lsq import LSQ_OPTIONS, solve_lsq, solve_lsq_tensor
 from torch_modulo.singleshot.pathfollow import quality_guided_colour_k, quality_guided_k, residue_density
+from torch_modulo.singleshot.spec import GroupSolver, Method, MoveStats, Option, SolverSpec, TensorSolver
 from torch_modulo.singleshot.tiles import TILE_PIXELS, check_tile_pixels, tiled
 
 __all__ = [
     "AUTO_RESIDUES",
     "METHODS",
     "REGISTRY",
+    "GroupSolver",
     "Method",
+    "MoveStats",
     "Option",
     "SolverSpec",
+    "TensorSolver",
     "fast_start",
     "make_spec",
     "solve_group",
@@ -54,75 +58,6 @@ __all__ = [
 #: ``init="auto"`` of ``"fast"`` starts from path following when fewer than this share of 2 x 2 loops hold a
 #: residue.
 AUTO_RESIDUES = 1e-3
-
-
-@dataclass(frozen=True)
-class Option:
-    """One option of a method.
-
-    Attributes:
-        default: the value used when the caller does not give one.
-        check: ``check(value, name)`` returns the value normalised (e.g. ``np.float32`` to ``float``) or raises
-            ``TypeError`` / ``ValueError`` naming it (the checks of ``torch_modulo._checks``).
-    """
-
-    default: Any
-    check: Callable[[Any, str], Any]
-
-
-@dataclass(frozen=True)
-class SolverSpec:
-    """Everything a worker needs to solve one group of planes (picklable).
-
-    Attributes:
-        method: a key of :data:`REGISTRY`.
-        params: the potential of Eq. 5.
-        neighborhood: 8 or 4.
-        sigma: the paper's larger step (1 disables it).
-        max_iter: the most global cuts.
-        options: method-specific options as sorted ``(name, value)`` pairs (checked by :func:`make_spec`).
-        anchor_fraction: the smallest region (share of the pixels) that may anchor ``k = 0`` (see
-            :func:`~torch_modulo.singleshot.anchor.anchor_k`: small regions anchor only with mostly smooth
-            borders).
-    """
-
-    method: str
-    params: EnergyParams
-    neighborhood: int = 8
-    sigma: int = 2
-    max_iter: int = 1000
-    options: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
-    anchor_fraction: float = 1e-3
-
-    def option(self, name: str) -> Any:
-        """The value of option ``name``: the caller's, else the method's default."""
-        return dict(self.options).get(name, REGISTRY[self.method].options[name].default)
-
-
-#: ``(moduli (G, H, W) int64, spec, one MoveStats per plane) -> restored (G, H, W) int64``.
-GroupSolver = Callable[[np.ndarray, SolverSpec, list[MoveStats]], np.ndarray]
-
-#: ``(moduli (B, C, H, W) floating tensor, spec) -> (k (B, C, H, W) int64, confidence or None)``, on the input's
-#: device, not anchored; the confidence (B, C, H, W) in ``(0, 1]`` is the method's own, where it has one.
-TensorSolver = Callable[[torch.Tensor, SolverSpec], tuple[torch.Tensor, torch.Tensor | None]]
-
-
-@dataclass(frozen=True)
-class Method:
-    """A registry entry: how a method solves, and what it accepts.
-
-    Attributes:
-        solve: the group solver (see the module docstring).
-        options: the method's options by name.
-        joint_channels: the solver takes all channels of an image at once (else one plane at a time).
-        solve_tensor: a solver of whole batches on their device, used by ``unwrap_single`` instead of ``solve``
-            (which then serves :func:`solve_group` alone).
-    """
-
-    solve: GroupSolver
-    options: Mapping[str, Option] = field(default_factory=dict)
-    joint_channels: bool = False
-    solve_tensor: TensorSolver | None = None
 
 
 def _per_plane(solver: Callable[[np.ndarray, SolverSpec, MoveStats], np.ndarray]) -> GroupSolver:
@@ -194,8 +129,7 @@ def _solve_guided(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) 
     restored = k  # moduli + k 2**bits, in place
     restored *= p.period
     restored += moduli
-    for plane, st in zip(restored, stats, strict=True):
-        st.energies.append(plane_energy(plane, p, pair_offsets(spec.neighborhood)))
+    for st in stats:
         st.tick("guided", start)
     return restored
 
@@ -295,6 +229,7 @@ def make_spec(
         sigma=check_int(sigma, "sigma", 1),
         max_iter=check_int(max_iter, "max_iter", 0),
         options=_check_options(method, options),
+        defaults=tuple(sorted((name, option.default) for name, option in REGISTRY[method].options.items())),
     )
 
 
@@ -317,6 +252,10 @@ def solve_group(moduli: np.ndarray, spec: SolverSpec) -> list[tuple[np.ndarray, 
     moduli = np.asarray(moduli, dtype=np.int64)
     stats = [MoveStats() for _ in moduli]
     solved = REGISTRY[spec.method].solve(moduli, spec, stats)
+    offsets = pair_offsets(spec.neighborhood)
+    for plane, st in zip(solved, stats, strict=True):  # the energy of a solver that made no moves, once here
+        if not st.energies:
+            st.energies.append(plane_energy(plane, spec.params, offsets))
     return _anchor_and_report(moduli, solved, stats, spec, start)
 
 
@@ -330,7 +269,10 @@ def solve_on_device(moduli: torch.Tensor, spec: SolverSpec) -> list[tuple[np.nda
     """
     start = time.perf_counter()
     h, w = moduli.shape[-2:]
-    k, confidence = REGISTRY[spec.method].solve_tensor(moduli.detach(), spec)
+    solve_tensor = REGISTRY[spec.method].solve_tensor
+    if solve_tensor is None:
+        raise ValueError(f"method {spec.method!r} has no tensor solver")
+    k, confidence = solve_tensor(moduli.detach(), spec)
     solved = k.to("cpu", torch.int64).numpy().reshape(-1, h, w)  # turned into the counts in place
     planes = moduli.detach().to("cpu", torch.int64).numpy().reshape(-1, h, w)
     solved *= spec.params.period

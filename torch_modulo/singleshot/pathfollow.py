@@ -200,7 +200,7 @@ def _forest_graph(
     return csr_matrix((data, indices, indptr), shape=(n, n))
 
 
-def _kruskal_graph(
+def kruskal_graph(
     pair_weights: Callable[[int, int], tuple[np.ndarray, np.ndarray]], h: int, w: int, tile_pixels: int = 0
 ) -> csr_matrix:
     """The pairs a minimum spanning tree of the (H, W) grid is taken from, with ``pair_weights`` as for
@@ -218,7 +218,8 @@ def _reliability_graph(difficulty: np.ndarray, tile_pixels: int = 0) -> csr_matr
     survive the blocks' own spanning forests (:func:`_forest_graph`), which hold a minimum spanning tree of the
     same graph.
     """
-    return _kruskal_graph(lambda r0, r1: _pair_weights(difficulty[r0:r1]), *difficulty.shape, tile_pixels)
+    h, w = difficulty.shape
+    return kruskal_graph(lambda r0, r1: _pair_weights(difficulty[r0:r1]), h, w, tile_pixels)
 
 
 def _tree_parents(graph: csr_matrix, root: int = 0) -> np.ndarray:

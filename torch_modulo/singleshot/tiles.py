@@ -28,18 +28,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from torch_modulo._checks import check_int
-from torch_modulo.singleshot.graphcut import MoveStats, plane_energy
+from torch_modulo.singleshot.graphcut import plane_energy
 from torch_modulo.singleshot.grid import pair_offsets
-
-if TYPE_CHECKING:
-    from torch_modulo.singleshot.methods import SolverSpec
+from torch_modulo.singleshot.spec import GroupSolver, MoveStats, SolverSpec
 
 __all__ = [
     "MIN_TILE_PIXELS",
@@ -62,9 +58,6 @@ TILE_OVERLAP = 32
 
 #: The smallest ``tile_pixels`` accepted (besides 0): a tile of ``4 * TILE_OVERLAP`` pixels square.
 MIN_TILE_PIXELS = (4 * TILE_OVERLAP) ** 2
-
-#: ``(moduli (G, h, w) int64, spec, one MoveStats per plane) -> restored (G, h, w) int64``: a method's solver.
-GroupSolver = Callable[[np.ndarray, "SolverSpec", list[MoveStats]], np.ndarray]
 
 
 def check_tile_pixels(value: object, name: str) -> int:
@@ -295,7 +288,7 @@ def solve_tiled(
     offsets = np.stack([stitch_offsets(len(tiles), plane_pairs) for plane_pairs in pairs])  # (G, tiles)
     for index, tile in enumerate(tiles):
         k[(slice(None), *tile.core)] += offsets[:, index, None, None]
-    restored = k
+    restored: np.ndarray = k
     restored *= period
     restored += moduli
     offsets_nb = pair_offsets(spec.neighborhood)

@@ -1,26 +1,35 @@
-"""Tests for the learned levels (torch_modulo/singleshot/levels.py): loader, tiles and strips, the receptive field,
-region moves (exact, never costlier, fixing a region a period off), and the ``levels`` option of the method."""
+"""Tests for the learned levels (torch_modulo/singleshot/learned/: network, inference, levels): loader, tiles and
+strips, the receptive field, region moves (exact, never costlier, fixing a region a period off), the ``levels``
+option of the method, and the deprecated ``torch_modulo.singleshot.levels``."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from torch_modulo.singleshot import SingleShotUnwrap, learned, unwrap_single
-from torch_modulo.singleshot import levels as levels_module
-from torch_modulo.singleshot.learned import _MAX_COST, BAND, edge_features, learned_k, load_model, predict_jumps
-from torch_modulo.singleshot.levels import (
-    _REACH,
+from torch_modulo.singleshot import SingleShotUnwrap, unwrap_single
+from torch_modulo.singleshot.learned import (
+    BAND,
+    LEVEL_WEIGHTS,
     LEVELS,
+    MAX_COST,
     LevelNet,
+    RegionMoves,
+    edge_features,
+    inference,
+    learned_k,
     level_margin,
     load_levels,
+    load_model,
+    predict_jumps,
     predict_levels,
     region_moves,
+    solver,
+    weights_path,
 )
+from torch_modulo.singleshot.learned import levels as levels_module
+from torch_modulo.singleshot.learned.levels import _REACH
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/singleshot/conftest.py
 
@@ -51,7 +60,7 @@ def energy(m, k, table, first, u, weight=1.0) -> float:
         n = (m[b] + 256 * k[b] - m[a] - 256 * k[a] - wd) // 256 - first[d][a]
         inside = (n >= 0) & (n < table.shape[1])
         c = np.take_along_axis(table[d][(slice(None), *a)], np.clip(n, 0, table.shape[1] - 1)[None], 0)[0]
-        total += float(np.where(inside, np.minimum(c, _MAX_COST), _MAX_COST).sum())
+        total += float(np.where(inside, np.minimum(c, MAX_COST), MAX_COST).sum())
     return total
 
 
@@ -122,7 +131,7 @@ class TestPrediction:
             cost = -torch.log_softmax(logits, dim=1)
             direct.append(cost[..., : (rows + 1) // 2, : cols // 2].numpy())
         assert np.allclose(whole, np.concatenate(direct), atol=5e-3)
-        assert len(learned._tiles(cols, 40, level_margin(net), net.stride)) > 2  # really in tiles
+        assert len(inference._tile_spans(cols, 40, level_margin(net), net.stride)) > 2  # really in tiles
         tiled = predict_levels(net, moduli, 8, tile=40)
         assert np.allclose(tiled.astype(np.float32), whole.astype(np.float32), atol=5e-3)
 
@@ -308,8 +317,8 @@ class TestRegionMoves:
 class TestOption:
     def test_levels_false_runs_no_region_moves(self, monkeypatch: pytest.MonkeyPatch) -> None:
         calls = []
-        real = levels_module.region_moves
-        monkeypatch.setattr(levels_module, "region_moves", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+        real = solver.region_moves
+        monkeypatch.setattr(solver, "region_moves", lambda *a, **kw: calls.append(1) or real(*a, **kw))
         modulus = torch.from_numpy(np.stack([lamp(32), lamp(32) + 7]) % 256)
         off = unwrap_single(modulus, method="learned", levels=False)
         assert not calls
@@ -319,7 +328,7 @@ class TestOption:
         calls.clear()
         assert np.array_equal(learned_k(modulus, 8, levels=True)[0], learned_k(modulus, 8, levels=load_levels())[0])
         assert len(calls) == 4
-        path = str(Path(levels_module.__file__).parent / "weights" / "levels.pt")
+        path = weights_path(None, LEVEL_WEIGHTS)
         assert np.array_equal(learned_k(modulus, 8, levels=path)[0], learned_k(modulus, 8, levels=np.True_)[0])
         assert np.array_equal(learned_k(modulus, 8, levels=np.False_)[0], learned_k(modulus, 8)[0])
         with pytest.raises(TypeError, match="levels"):
@@ -334,3 +343,67 @@ class TestOption:
         assert torch.equal(out, unwrap_single(modulus, method="learned", levels=True, workers=1))
         batch = unwrap_single(torch.stack([modulus, modulus.flip(-1)]), method="learned", workers=1)
         assert torch.equal(batch[1], unwrap_single(modulus.flip(-1), method="learned", workers=1))
+
+
+class TestRegionMovesClass:
+    """:class:`RegionMoves` alone: its regions, its global offset, and its run as :func:`region_moves`."""
+
+    def plane(self):
+        m = np.array([[10, 10, 10, 10]])
+        table = np.full((2, 3, 1, 4), 30.0)
+        table[:, 1] = 0.0  # jumps -1, 0, 1: sure of 0 but for the middle pair
+        table[0, :, 0, 1] = [30.0, 1.0, 2.0]
+        return m, table, np.full((2, 1, 4), -1)
+
+    def test_regions_and_global_offset(self) -> None:
+        m, table, first = self.plane()
+        u = np.full((16, 1, 2), 9.0)
+        u[3] = 0.0  # every block prefers level 3
+        moves = RegionMoves(m, np.zeros((1, 4), int), table, first, u, 8)
+        assert moves.count == 2 and moves.labels.tolist() == [[0, 0, 1, 1]]
+        assert moves.global_offset() == 3
+        assert moves.run().tolist() == [[3, 3, 3, 3]]
+
+    def test_run_is_region_moves(self) -> None:
+        rng = np.random.default_rng(3)
+        m = rng.integers(0, 256, (12, 10))
+        k = rng.integers(0, 3, (12, 10))
+        table = rng.uniform(0, 3, (2, 5, 12, 10)).astype(np.float32)
+        table[:, 2] = np.where(rng.uniform(size=(2, 12, 10)) < 0.7, 0.0, table[:, 2])
+        first = np.full((2, 12, 10), -2)
+        u = rng.uniform(0, 5, (LEVELS, 6, 5)).astype(np.float16)
+        out = RegionMoves(m, k, table, first, u, 8).run(rounds=60)
+        assert np.array_equal(out, region_moves(m, k, table, first, u, 8))
+        assert out.dtype == np.int64
+
+    def test_bad_level_costs_are_named(self) -> None:
+        m, table, first = self.plane()
+        with pytest.raises(ValueError, match=r"level costs of shape \(16, 1, 1\) for a 1 x 4 plane"):
+            RegionMoves(m, np.zeros((1, 4), int), table, first, np.zeros((16, 1, 1)), 8)
+
+    def test_an_empty_plane(self) -> None:
+        moves = RegionMoves(
+            np.zeros((0, 3), int),
+            np.zeros((0, 3), int),
+            np.zeros((2, 1, 0, 3)),
+            np.zeros((2, 0, 3)),
+            np.zeros((4, 0, 2)),
+            8,
+        )
+        assert moves.run().shape == (0, 3)
+
+
+class TestDeprecatedLevelsModule:
+    def test_old_names_warn_and_resolve(self) -> None:
+        import torch_modulo.singleshot.learned as learned
+        import torch_modulo.singleshot.levels as old
+
+        for name in ("region_moves", "LevelNet", "LevelHead", "load_levels", "predict_levels", "LEVELS"):
+            with pytest.warns(DeprecationWarning, match=f"levels.{name} is deprecated"):
+                assert getattr(old, name) is getattr(learned, name)
+
+    def test_unknown_names_raise(self) -> None:
+        import torch_modulo.singleshot.levels as old
+
+        with pytest.raises(AttributeError, match="no attribute 'nope'"):
+            old.nope  # noqa: B018

@@ -1,0 +1,250 @@
+"""The learned method's entry for the registry: its options, the decoding of one image, the solvers.
+
+:func:`learned_k` runs the edge network tile by tile on its device, then decodes every channel on the CPU: the
+spanning tree (:func:`~torch_modulo.singleshot.learned.decode_jumps`), optionally min-cut moves
+(:func:`~torch_modulo.singleshot.learned.refine_band`, option ``max_cuts``) and by default the level head's region
+moves (:func:`~torch_modulo.singleshot.learned.region_moves`, option ``levels``). :func:`solve_learned` and
+:func:`solve_learned_tensor` are the registry's solvers; the caller anchors ``k``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from torch_modulo._checks import check_flag, check_int
+from torch_modulo.singleshot.learned.decoding import decode_jumps, refine_band
+from torch_modulo.singleshot.learned.inference import TILE, predict_jumps, predict_levels
+from torch_modulo.singleshot.learned.levels import region_moves
+from torch_modulo.singleshot.learned.network import EdgeJumpNet, LevelNet, load_levels, load_model
+from torch_modulo.singleshot.spec import MoveStats, SolverSpec
+
+__all__ = [
+    "BAND",
+    "LEARNED_OPTIONS",
+    "MOSAIC_CUTS",
+    "check_levels",
+    "check_tile",
+    "check_weights",
+    "learned_k",
+    "mosaic_spec",
+    "solve_learned",
+    "solve_learned_tensor",
+]
+
+#: The default ``max_cuts`` of a mosaic's guide (``unwrap_single(..., cfa=...)``, :func:`mosaic_spec`): its
+#: interpolated values mislead the tree more often than a full colour image does, and the cuts outvote them.
+MOSAIC_CUTS = 4
+
+#: With ``max_cuts`` or ``levels``, the costs of the jumps within ``BAND`` of each pair's most likely one are kept for
+#: the cuts and the level moves (farther jumps cost :data:`~torch_modulo.singleshot.learned.MAX_COST`):
+#: ``2 (2 BAND + 1)`` values per pixel and channel.
+BAND = 2
+
+
+def _level_network(levels: LevelNet | bool | str | Path | None, device: torch.device) -> LevelNet | None:
+    """The level network of the ``levels`` option (None: no level moves)."""
+    if levels is None or isinstance(levels, nn.Module):
+        return levels
+    choice = check_levels(levels, "levels")
+    return None if choice is False else load_levels(None if choice is True else choice, device=device)
+
+
+def learned_k(
+    moduli: np.ndarray | torch.Tensor,
+    bits: int,
+    net: EdgeJumpNet | None = None,
+    max_cuts: int = 0,
+    augment: bool = False,
+    tile: int = TILE,
+    levels: LevelNet | bool | str | Path | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` and the confidence of one image's channels (C, H, W), up to one constant per channel.
+
+    The network runs on its own device (the moduli are moved there), tile by tile; the decoding on the CPU. With
+    ``max_cuts``, min-cut moves (:func:`~torch_modulo.singleshot.learned.refine_band`) follow the tree. With
+    ``levels`` (a :class:`~torch_modulo.singleshot.learned.LevelNet`, ``True`` for the shipped one, or a level
+    weights file), regions are then moved by its level costs (:func:`~torch_modulo.singleshot.learned.region_moves`;
+    float16 costs per 2 x 2 block, level and channel are kept while the image is decoded). With either, the costs of
+    the jumps within :data:`BAND` of each pair's most likely one are kept (``2 (2 BAND + 1)`` floats per pixel and
+    channel). The confidence is that of the tree. The channels are decoded side by side on torch's threads.
+
+    Example:
+        >>> ramp = np.arange(0, 1200, 40).reshape(1, 1, -1).repeat(8, axis=1)
+        >>> k, confidence = learned_k(ramp % 256, 8)
+        >>> restored = ramp % 256 + 256 * k
+        >>> bool((restored - restored.min() == ramp).all())
+        True
+    """
+    net = load_model() if net is None else net
+    x = torch.as_tensor(moduli)
+    if x.shape[0] == 0:  # no channels: nothing to predict
+        return np.zeros(x.shape, dtype=np.int64), np.ones(x.shape)
+    k = np.empty(x.shape, dtype=np.int64)
+    confidence = np.empty(x.shape)
+    device = next(net.parameters()).device
+    level_net = _level_network(levels, device)
+    band = BAND if max_cuts or level_net is not None else 0
+    x_net = x.to(device=device, dtype=torch.float32)
+    if level_net is not None and not augment and _same_network(level_net.trunk, net):  # one run of the encoder
+        jump, cost, u = predict_jumps(net, x_net, bits, augment, tile, band, level_net)
+    else:
+        jump, cost = predict_jumps(net, x_net, bits, augment, tile, band)
+        if level_net is not None:
+            level_device = next(level_net.parameters()).device
+            u = predict_levels(level_net, x.to(device=level_device, dtype=torch.float32), bits, tile)
+
+    def decode(i: int) -> None:  # one channel, from its int64 moduli
+        plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
+        k[i], confidence[i] = decode_jumps(plane, jump[i], cost[i, :, band] if band else cost[i], bits)
+        if max_cuts:
+            k[i] = refine_band(plane, k[i], cost[i], jump[i].astype(np.int64) - band, bits, max_cuts)
+        if level_net is not None:  # last: the cuts weigh the pairs alone and would undo what the levels moved
+            k[i] = region_moves(plane, k[i], cost[i], jump[i].astype(np.int64) - band, u[i], bits)
+
+    # numpy and scipy let go of the GIL for most of the decoding: the channels run side by side on torch's threads
+    threads = min(torch.get_num_threads(), x.shape[0])
+    if threads > 1:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(decode, range(x.shape[0])))  # raises what a channel raised
+    else:
+        for i in range(x.shape[0]):
+            decode(i)
+    return k, confidence
+
+
+def _same_network(a: nn.Module, b: nn.Module) -> bool:
+    """Whether two networks hold the same weights on the same device (checked every call: a network may change)."""
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(
+        sa[k].shape == sb[k].shape and sa[k].device == sb[k].device and torch.equal(sa[k], sb[k]) for k in sa
+    )
+
+
+def check_weights(value: object, name: str) -> str | None:
+    """The ``weights`` option: ``None`` (the shipped weights) or the path of a weights file, as a string (the file is
+    loaded, and cached, to check it).
+
+    Example:
+        >>> check_weights(None, "weights") is None
+        True
+    """
+    if value is None:
+        return None
+    if not isinstance(value, (str, Path)):
+        raise TypeError(f"{name} must be None or a path to a weights file; got {value!r}")
+    if not Path(value).is_file():
+        raise ValueError(f"{name} must be an existing weights file; got {str(value)!r}")
+    load_model(str(value))  # a file that is not one fails here, naming it, not at the first image
+    return str(value)
+
+
+def check_levels(value: object, name: str) -> bool | str:
+    """The ``levels`` option: ``True`` (the shipped level weights), ``False`` (none) or the path of a level weights
+    file, as a string (the file is loaded, and cached, to check it).
+
+    Example:
+        >>> check_levels(False, "levels")
+        False
+    """
+    if isinstance(value, (str, Path)):
+        if not Path(value).is_file():
+            raise ValueError(f"{name} must be True, False or an existing level weights file; got {str(value)!r}")
+        load_levels(str(value))  # a file that is not one fails here, naming it
+        return str(value)
+    try:
+        return check_flag(value, name)
+    except TypeError:
+        raise TypeError(f"{name} must be True, False or a path to a level weights file; got {value!r}") from None
+
+
+def check_tile(value: object, name: str) -> int:
+    """The ``tile`` option: 0 (the whole image at once) or a side of at least 4 pixels.
+
+    Example:
+        >>> check_tile(512, "tile")
+        512
+    """
+    tile = check_int(value, name, 0)
+    if 0 < tile < 4:
+        raise ValueError(f"{name} must be 0 (no tiles) or at least 4 pixels; got {value!r}")
+    return tile
+
+
+def _check_cuts(value: object, name: str) -> int:
+    return check_int(value, name, 0)
+
+
+#: The options of ``method="learned"``: name -> (default, check). ``weights``: ``None`` (the shipped weights) or
+#: a weights file; ``levels``: move the tree's regions by learned level costs
+#: (:func:`~torch_modulo.singleshot.learned.region_moves`; ``True``: the shipped level weights, a path: a level
+#: weights file, ``False``: no level moves); ``max_cuts``: the most binary moves of
+#: :func:`~torch_modulo.singleshot.learned.refine_band` after the tree (0: none); ``augment``: average the network's
+#: output over the four flips of the image; ``tile``: the side of the tiles the network predicts at once
+#: (:data:`~torch_modulo.singleshot.learned.TILE`; 0: the whole image).
+LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
+    "weights": (None, check_weights),
+    "levels": (True, check_levels),
+    "max_cuts": (0, _check_cuts),
+    "augment": (False, check_flag),
+    "tile": (TILE, check_tile),
+}
+
+
+def mosaic_spec(spec: SolverSpec) -> SolverSpec:
+    """``spec`` for a mosaic's interpolated guide: ``"learned"`` runs :data:`MOSAIC_CUTS` cuts and no level moves
+    unless told otherwise (on mosaics the cuts gain and the level moves do not; docs/cfa.md).
+
+    The other methods, and the ``max_cuts`` and ``levels`` the caller chose, are kept as they are.
+    """
+    if spec.method != "learned":
+        return spec
+    options = {"max_cuts": MOSAIC_CUTS, "levels": False, **dict(spec.options)}
+    return dataclasses.replace(spec, options=tuple(sorted(options.items())))
+
+
+def _learned_ks(moduli: np.ndarray | torch.Tensor, spec: SolverSpec) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` (not anchored) and the confidence of one image's channels under ``spec``'s options, the network on the
+    moduli's device."""
+    device = moduli.device if isinstance(moduli, torch.Tensor) else torch.device("cpu")
+    net = load_model(spec.option("weights"), device=device)
+    options = (int(spec.option("max_cuts")), spec.option("augment"), int(spec.option("tile")))
+    return learned_k(moduli, spec.params.bits, net, *options, levels=spec.option("levels"))
+
+
+def solve_learned(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
+    """The registry's solver: (G, H, W) int64 moduli of one image's channels to restored counts (not anchored).
+
+    Options (``spec.option``): :data:`LEARNED_OPTIONS`.
+    """
+    start = time.perf_counter()
+    restored = moduli + spec.params.period * _learned_ks(moduli, spec)[0]
+    for st in stats:
+        st.tick("learned", start)
+    return restored
+
+
+def solve_learned_tensor(moduli: torch.Tensor, spec: SolverSpec) -> tuple[torch.Tensor, torch.Tensor]:
+    """The registry's tensor solver: a (B, C, H, W) batch to ``k`` (not anchored) and the confidence of every value
+    (float64, as :func:`~torch_modulo.singleshot.learned.learned_confidence`, from the same run of the network), both
+    on the CPU.
+
+    The network runs where the moduli are (a GPU when they are there); the integer decoding runs on the CPU.
+    """
+    if len(moduli) == 1:  # no copy
+        k, confidence = _learned_ks(moduli[0], spec)
+        return torch.from_numpy(k)[None], torch.from_numpy(confidence)[None]
+    k_all = torch.empty(moduli.shape, dtype=torch.int64)
+    confidence_all = torch.empty(moduli.shape, dtype=torch.float64)
+    for i, image in enumerate(moduli):  # filled image by image: no list of the batch's arrays, no stacked copy
+        ki, ci = _learned_ks(image, spec)
+        k_all[i], confidence_all[i] = torch.from_numpy(ki), torch.from_numpy(ci)
+    return k_all, confidence_all
