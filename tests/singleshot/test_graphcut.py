@@ -17,7 +17,7 @@ from torch_modulo.singleshot.graphcut import (
     plane_energy,
     solve_fast,
     solve_pixels,
-    solve_tiles,
+    solve_windows,
 )
 from torch_modulo.singleshot.grid import pair_offsets
 
@@ -125,7 +125,7 @@ class TestSolveTiles:
         rng = np.random.default_rng(5)
         start = rng.integers(0, 256, (20, 24)) + 256 * rng.integers(0, 3, (20, 24))
         stats = MoveStats()
-        out = solve_tiles(start, P8, OFF8, tile=8, stats=stats)
+        out = solve_windows(start, P8, OFF8, window=8, stats=stats)
         assert plane_energy(out, P8, OFF8) <= plane_energy(start, P8, OFF8)
         assert np.array_equal(out % 256, start % 256)
         assert stats.energies[-1] == pytest.approx(plane_energy(out, P8, OFF8))
@@ -134,26 +134,26 @@ class TestSolveTiles:
     def test_fixes_local_errors(self) -> None:
         truth = smooth_scene(24, 24, seed=6)
         broken = truth.copy()
-        broken[5:8, 5:8] += 256  # a small island one rollover too high: only a down move fixes it in a tile
-        out = solve_tiles(broken, P8, OFF8, tile=8)
+        broken[5:8, 5:8] += 256  # a small island one rollover too high: only a down move fixes it in a window
+        out = solve_windows(broken, P8, OFF8, window=8)
         assert np.array_equal(out, truth)
 
 
 class TestSolveFast:
-    def test_tiles_only_after_an_early_stop(self) -> None:
+    def test_windows_only_after_an_early_stop(self) -> None:
         truth = smooth_scene(16, 16, seed=1)
         converged = MoveStats()
         out = solve_fast(truth % 256, P8, OFF8, rel_tol=0.0, stats=converged)
-        assert converged.stop == "converged" and "tiles" not in converged.seconds
+        assert converged.stop == "converged" and "windows" not in converged.seconds
         assert np.array_equal(out, solve_pixels(truth % 256, P8, OFF8))
         early = MoveStats()
-        solve_fast(truth % 256, P8, OFF8, rel_tol=0.5, tile=8, stats=early)
-        assert early.stop == "rel_tol" and "tiles" in early.seconds
+        solve_fast(truth % 256, P8, OFF8, rel_tol=0.5, window=8, stats=early)
+        assert early.stop == "rel_tol" and "windows" in early.seconds
 
     def test_energy_never_increases(self) -> None:
         rng = np.random.default_rng(8)
         stats = MoveStats()
-        out = solve_fast(rng.integers(0, 256, (16, 16)), P8, OFF8, tile=8, stats=stats)
+        out = solve_fast(rng.integers(0, 256, (16, 16)), P8, OFF8, window=8, stats=stats)
         assert stats.energies[-1] == pytest.approx(plane_energy(out, P8, OFF8))
         assert all(b < a for a, b in zip(stats.energies, stats.energies[1:], strict=False))
 

@@ -68,7 +68,7 @@ class TestUnwrapSingle:
         out = unwrap_single(truth % 256, bits=8, method=method)
         assert torch.equal(out, truth)
 
-    @pytest.mark.parametrize("options", [{"init": "quality"}, {"init": "zeros"}, {"tile": 0, "rel_tol": 0.0}])
+    @pytest.mark.parametrize("options", [{"init": "quality"}, {"init": "zeros"}, {"window": 0, "rel_tol": 0.0}])
     def test_fast_options_recover(self, options: dict) -> None:
         truth = scene("mixed")
         assert torch.equal(unwrap_single(truth % 256, method="fast", **options), truth)
@@ -242,7 +242,7 @@ class TestUnwrapSingle:
             (torch.zeros(4, 4), {"method": "paper", "init": "zeros"}, TypeError, "init"),
             (torch.zeros(4, 4), {"method": "fast", "init": "random"}, ValueError, "random"),
             (torch.zeros(4, 4), {"method": "fast", "rel_tol": -1.0}, ValueError, "-1.0"),
-            (torch.zeros(4, 4), {"method": "fast", "tile": 1}, ValueError, "1"),
+            (torch.zeros(4, 4), {"method": "fast", "window": 1}, ValueError, "1"),
             (torch.zeros(4, 4), {"method": "fast", "contract": True}, TypeError, "contract"),
             (torch.zeros(4, 4), {"neighborhood": [8]}, ValueError, r"neighborhood must be one of 4, 8; got \[8\]"),
             (torch.zeros(4, 4), {"neighborhood": "8"}, ValueError, "'8'"),

@@ -15,7 +15,7 @@ the methods of :data:`METHODS`:
 - ``"fast"``: the paper's energy (Eqs. 3-5, :mod:`torch_modulo.singleshot.energy`) and binary graph-cut moves
   (:mod:`torch_modulo.singleshot.graphcut`) on a cheaper schedule: start from path following when the wrapped
   image is smooth (no residues), else from ``k = 0``; global moves until one gains less than ``rel_tol`` of the
-  energy; then local moves in tiles.
+  energy; then local moves in small windows.
 - ``"paper"``: the paper's algorithm as published: from ``k = 0``, moves ``k <- k + delta`` while the energy
   drops, then step ``sigma``; non-representable pair terms lose their pairwise edge (PUMA).
 - ``"lsq"``: least-squares integration of the wrapped differences with the DCT (Ghiglia and Romero 1994), a few

@@ -26,11 +26,11 @@ Three solvers share this machinery:
 
 - :func:`solve_pixels`: the paper's algorithm (``method="paper"``), one node per pixel (``rel_tol`` can end it
   early).
-- :func:`solve_tiles`: the same moves cut inside small tiles with the rest of the image fixed, up and down, only
+- :func:`solve_windows`: the same moves cut inside small windows with the rest of the image fixed, up and down, only
   where something can still improve. The max-flow's cost grows much faster than the graph on these images,
   so many small cuts are far cheaper than one global cut; they find local moves only.
 - :func:`solve_fast`: the schedule of ``method="fast"``: global pixel moves until one gains less than
-  ``rel_tol`` of the energy, then tiles.
+  ``rel_tol`` of the energy, then windows.
 
 :func:`pixel_move` (one global move), :class:`PairTerms` (the pair terms of a move and their graph
 decomposition) and :func:`add_terminals` are the building blocks, public for solvers built on them.
@@ -39,6 +39,8 @@ decomposition) and :func:`add_terminals` are the building blocks, public for sol
 from __future__ import annotations
 
 import time
+import warnings
+from typing import Any
 
 import maxflow
 import numpy as np
@@ -56,7 +58,7 @@ __all__ = [
     "plane_energy",
     "solve_fast",
     "solve_pixels",
-    "solve_tiles",
+    "solve_windows",
 ]
 
 #: A lookup table of pair terms is used when the range of differences is at most this many entries
@@ -289,7 +291,7 @@ def solve_pixels(
     return restored
 
 
-# ----------------------------------------------------------------------------------------------------- tiles
+# --------------------------------------------------------------------------------------------------- windows
 
 
 def _pair_index(width: int, offset: tuple[int, int], mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -320,43 +322,43 @@ def move_delta_e(
     return total
 
 
-class _TileGrid:
-    """Square tiles of side ``tile`` shifted by ``shift`` pixels, coloured 2 x 2 (tiles of one colour never
+class _WindowGrid:
+    """Square windows of side ``window`` shifted by ``shift`` pixels, coloured 2 x 2 (windows of one colour never
     touch, not even diagonally)."""
 
-    def __init__(self, h: int, w: int, tile: int, shift: int) -> None:
-        ty = (np.arange(h) + shift) // tile
-        tx = (np.arange(w) + shift) // tile
+    def __init__(self, h: int, w: int, window: int, shift: int) -> None:
+        ty = (np.arange(h) + shift) // window
+        tx = (np.arange(w) + shift) // window
         self.nty, self.ntx = int(ty[-1]) + 1, int(tx[-1]) + 1
         self.index = (ty[:, None] * self.ntx + tx[None, :]).ravel()
         self.pixel_colour = ((ty % 2)[:, None] * 2 + (tx % 2)[None, :]).ravel()
         self.count = self.nty * self.ntx
 
-    def tiles_of(self, mask: np.ndarray) -> np.ndarray:
-        """Boolean per tile: whether the tile holds a pixel of ``mask``."""
+    def windows_of(self, mask: np.ndarray) -> np.ndarray:
+        """Boolean per window: whether the window holds a pixel of ``mask``."""
         hit = np.zeros(self.count, dtype=bool)
         hit[self.index[mask.ravel()]] = True
         return hit
 
 
-def _tile_move(
+def _window_move(
     restored: np.ndarray,
     p: EnergyParams,
     offsets: tuple[tuple[int, int], ...],
     step: int,
-    grid: _TileGrid,
-    tiles: np.ndarray,
+    grid: _WindowGrid,
+    windows: np.ndarray,
     tol: float,
 ) -> tuple[np.ndarray, int]:
-    """Cut the move ``k <- k + step * delta`` inside every selected tile, each with the rest of the image fixed.
+    """Cut the move ``k <- k + step * delta`` inside every selected window, each with the rest of the image fixed.
 
-    All selected tiles go into one graph; a pair that leaves its tile becomes a unary term of its free end (the
-    other end held fixed). Returns the pixels of the tiles whose own energy change (neighbours fixed) is
+    All selected windows go into one graph; a pair that leaves its window becomes a unary term of its free end (the
+    other end held fixed). Returns the pixels of the windows whose own energy change (neighbours fixed) is
     negative, and the number of graph nodes.
     """
     h, w = restored.shape
     flat = restored.ravel()
-    free = tiles[grid.index]
+    free = windows[grid.index]
     nodes = np.flatnonzero(free)
     n = nodes.size
     node_of = np.full(h * w, -1, dtype=np.int64)
@@ -389,7 +391,7 @@ def _tile_move(
     add_terminals(graph, unary)
     graph.maxflow()
     delta = graph.get_grid_segments(np.arange(n))
-    # Each tile's exact energy change with its neighbours held fixed.
+    # Each window's exact energy change with its neighbours held fixed.
     gain = np.zeros(grid.count)
     for ni, nj, ti, tj, a, b, inner in saved:
         di = np.zeros(ni.size, dtype=bool)
@@ -419,25 +421,25 @@ def _steep_pixels(restored: np.ndarray, offsets: tuple[tuple[int, int], ...], li
     return hot
 
 
-def solve_tiles(
+def solve_windows(
     restored: np.ndarray,
     p: EnergyParams,
     offsets: tuple[tuple[int, int], ...],
     *,
-    tile: int = 64,
+    window: int = 64,
     sigma: int = 2,
     max_sweeps: int = 100,
     stats: MoveStats | None = None,
 ) -> np.ndarray:
-    """Local moves: the paper's binary moves cut inside small tiles, up and down, until none helps.
+    """Local moves: the paper's binary moves cut inside small windows, up and down, until none helps.
 
-    Every tile is cut with the rest of the image held fixed, all tiles of a sweep in one graph, with steps
+    Every window is cut with the rest of the image held fixed, all windows of a sweep in one graph, with steps
     ``+1, -1`` and then ``+sigma, -sigma`` (down moves stand in for the global "move everything else up"
-    that a bounded tile cannot make), on two tile grids shifted by half a tile. A tile is cut only when it is
+    that a bounded window cannot make), on two window grids shifted by half a window. A window is cut only when it is
     *dirty* (something within a pixel changed since it was last cut for that step and grid) and *hot* (it holds
     a pair with ``|I_i - I_j| > |step| 2**bits / 2``: without one every pair term grows under the move, so no
-    move can lower the energy). The tiles' moves are applied together when that lowers the exact energy, else
-    colour by colour (tiles of one colour do not touch). Small graphs keep the max-flow fast: on these images
+    move can lower the energy). The windows' moves are applied together when that lowers the exact energy, else
+    colour by colour (windows of one colour do not touch). Small graphs keep the max-flow fast: on these images
     its cost grows much faster than linearly with the graph.
 
     Returns:
@@ -452,8 +454,8 @@ def solve_tiles(
         stats.energies.append(energy)
     if restored.size < 2:
         return restored
-    tile = max(2, int(tile))
-    grids = {shift: _TileGrid(h, w, tile, shift) for shift in dict.fromkeys((0, tile // 2))}
+    window = max(2, int(window))
+    grids = {shift: _WindowGrid(h, w, window, shift) for shift in dict.fromkeys((0, window // 2))}
     steps = (1, -1) if sigma <= 1 else (1, -1, sigma, -sigma)
     combos = [(shift, step) for step in steps for shift in grids]
     dirty = {combo: np.ones((h, w), dtype=bool) for combo in combos}
@@ -466,10 +468,10 @@ def solve_tiles(
             if mask.any():
                 dirty[(shift, step)] = np.zeros((h, w), dtype=bool)
                 hot = _steep_pixels(restored, offsets, abs(step) * p.period / 2)
-                todo = grid.tiles_of(mask) & grid.tiles_of(hot)
+                todo = grid.windows_of(mask) & grid.windows_of(hot)
                 if todo.any():
                     tol = 1e-9 * max(1.0, abs(energy))
-                    moved, n = _tile_move(restored, p, offsets, step, grid, todo, tol)
+                    moved, n = _window_move(restored, p, offsets, step, grid, todo, tol)
                     stats.cuts += 1
                     stats.nodes.append(n)
                     shift_counts = step * p.period
@@ -497,7 +499,7 @@ def solve_tiles(
                 break
         if quiet >= len(combos):
             break
-    stats.tick("tiles", start)
+    stats.tick("windows", start)
     return restored
 
 
@@ -509,15 +511,15 @@ def solve_fast(
     sigma: int = 2,
     max_iter: int = 1000,
     rel_tol: float = 3e-4,
-    tile: int = 64,
+    window: int = 64,
     stats: MoveStats | None = None,
 ) -> np.ndarray:
     """The paper's energy and moves on a cheaper schedule (``method="fast"``), from ``restored``.
 
     Global pixel moves as in :func:`solve_pixels` until an accepted move gains less than ``rel_tol`` of the
-    energy; if that (or ``max_iter``) stopped them before the paper's rule did, local moves in ``tile`` x ``tile``
-    tiles (:func:`solve_tiles`) finish the job. The long tail of global moves that each gain little is what
-    costs most on textured images; the tiles find the same local moves far more cheaply.
+    energy; if that (or ``max_iter``) stopped them before the paper's rule did, local moves in ``window`` x ``window``
+    windows (:func:`solve_windows`) finish the job. The long tail of global moves that each gain little is what
+    costs most on textured images; the windows find the same local moves far more cheaply.
 
     Args:
         restored: int64 (H, W) plane ``I_m + k 2**bits`` to start from.
@@ -526,7 +528,7 @@ def solve_fast(
         sigma: the larger step (paper: 2); 1 disables it.
         max_iter: the most global cuts.
         rel_tol: stop the global phase after an accepted move that gains less than this share of the energy.
-        tile: side of the tiles of the local phase; 0 skips it.
+        window: side of the windows of the local phase; 0 skips it.
         stats: filled with energies, steps, cut counts and timings when given.
 
     Returns:
@@ -540,6 +542,20 @@ def solve_fast(
     """
     stats = stats if stats is not None else MoveStats()
     restored = solve_pixels(restored, p, offsets, sigma=sigma, max_iter=max_iter, rel_tol=rel_tol, stats=stats)
-    if tile > 0 and stats.stop != "converged":
-        restored = solve_tiles(restored, p, offsets, tile=tile, sigma=sigma, stats=stats)
+    if window > 0 and stats.stop != "converged":
+        restored = solve_windows(restored, p, offsets, window=window, sigma=sigma, stats=stats)
     return restored
+
+
+def __getattr__(name: str) -> object:
+    if name == "solve_tiles":  # the former name of solve_windows
+        warnings.warn(
+            "graphcut.solve_tiles is deprecated; use solve_windows (window=)", DeprecationWarning, stacklevel=2
+        )
+        return _solve_tiles
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _solve_tiles(*args: Any, tile: int = 64, **kwargs: Any) -> np.ndarray:
+    """:func:`solve_windows` under its former name and argument (``tile``: the window's side)."""
+    return solve_windows(*args, window=tile, **kwargs)

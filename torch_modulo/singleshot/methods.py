@@ -20,6 +20,7 @@ confidence (B, C, H, W) or None)`` on the input's device (``solve_tensor``):
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
@@ -42,6 +43,7 @@ __all__ = [
     "AUTO_RESIDUES",
     "METHODS",
     "REGISTRY",
+    "RENAMED",
     "GroupSolver",
     "Method",
     "MoveStats",
@@ -107,7 +109,7 @@ def _solve_fast(modulus: np.ndarray, spec: SolverSpec, stats: MoveStats) -> np.n
         sigma=spec.sigma,
         max_iter=spec.max_iter,
         rel_tol=float(spec.option("rel_tol")),
-        tile=int(spec.option("tile")),
+        window=int(spec.option("window")),
         stats=stats,
     )
 
@@ -134,11 +136,11 @@ def _solve_guided(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) 
     return restored
 
 
-def _check_tile(value: object, name: str) -> int:
-    tile = check_int(value, name, 0)
-    if tile == 1:
+def _check_window(value: object, name: str) -> int:
+    window = check_int(value, name, 0)
+    if window == 1:
         raise ValueError(f"{name} must be 0 (no local moves) or >= 2; got 1")
-    return tile
+    return window
 
 
 def _check_init(value: object, name: str) -> str:
@@ -172,7 +174,7 @@ REGISTRY: Mapping[str, Method] = MappingProxyType(
             options={
                 "init": Option("auto", _check_init),
                 "rel_tol": Option(3e-4, _check_nonnegative),
-                "tile": Option(64, _check_tile),
+                "window": Option(64, _check_window),
                 "tile_pixels": Option(TILE_PIXELS, check_tile_pixels),
             },
         ),
@@ -189,8 +191,23 @@ REGISTRY: Mapping[str, Method] = MappingProxyType(
 METHODS: tuple[str, ...] = tuple(REGISTRY)
 
 
+#: Options that were renamed, per method: old name -> new name (the old name still works, with a warning).
+RENAMED: Mapping[str, Mapping[str, str]] = MappingProxyType({"fast": {"tile": "window"}})
+
+
 def _check_options(method: str, options: Mapping[str, Any]) -> tuple[tuple[str, Any], ...]:
     allowed = REGISTRY[method].options
+    renamed = RENAMED.get(method, {})
+    if any(old in options for old in renamed):
+        options = dict(options)
+        for old, new in renamed.items():
+            if old in options:
+                warnings.warn(
+                    f"option {old!r} of method {method!r} is deprecated; use {new!r}", DeprecationWarning, stacklevel=4
+                )
+                if new in options:
+                    raise TypeError(f"method {method!r} got both {old!r} and its new name {new!r}")
+                options[new] = options.pop(old)
     unknown = sorted(set(options) - set(allowed))
     if unknown:
         known = ", ".join(sorted(allowed)) or "none"
@@ -216,8 +233,8 @@ def make_spec(
         ValueError: an unknown method or a value out of range.
 
     Example:
-        >>> make_spec(8, "fast", 8, 0.1, 1e-5, None, 2, 1000, {"tile": 32}).options
-        (('tile', 32),)
+        >>> make_spec(8, "fast", 8, 0.1, 1e-5, None, 2, 1000, {"window": 32}).options
+        (('window', 32),)
     """
     check_choice(method, "method", METHODS)
     params = EnergyParams.make(bits, a1, a2, x0)

@@ -197,7 +197,8 @@ def unwrap_single(
             ``levels`` is given (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`).
             Demosaic the restored counts (:func:`torch_modulo.cfa.demosaic`), never the modulus.
         **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
-            ``"auto"``), ``rel_tol`` (default 3e-4), ``tile`` (default 64; 0 disables the local phase),
+            ``"auto"``), ``rel_tol`` (default 3e-4), ``window`` (default 64: the side of the windows of the
+            local moves; 0 disables the local phase; formerly ``tile``),
             ``tile_pixels`` (default ``2**22``: larger images are solved in overlapping tiles of at most that many
             pixels, stitched on their overlaps, :mod:`torch_modulo.singleshot.tiles`; 0 never tiles).
             ``"guided"``: ``colour`` (default True: the channels of an image share one tree; False: each channel
