@@ -25,8 +25,9 @@ import numpy as np
 
 from research.common import DATA, PERIOD, load, protocol_a, select_scenes
 from torch_modulo.singleshot.energy import EnergyParams
-from torch_modulo.singleshot.graphcut import MoveStats, pixel_move, plane_energy, solve_pixels, solve_tiles
+from torch_modulo.singleshot.graphcut import pixel_move, plane_energy, solve_pixels, solve_tiles
 from torch_modulo.singleshot.grid import pair_offsets
+from torch_modulo.singleshot.spec import MoveStats
 
 TILES = (32, 64, 128, 256)
 

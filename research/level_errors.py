@@ -1,13 +1,13 @@
 """Where the level moves stop, and why: the errors of ``unwrap_single(method="learned")`` against its own energy.
 
-The default decodes the shipped networks' outputs by the tree, then :func:`~torch_modulo.singleshot.levels.region_moves`
-over the regions joined by pairs the edge network is sure of. This asks, per split and protocol, what is left:
+The default decodes the shipped networks' outputs by the tree, then
+:func:`~torch_modulo.singleshot.learned.region_moves` over the regions joined by pairs the edge network is sure of.
+This asks, per split and protocol, what is left:
 
 - **oracle**: every region (joined by pairs of cost ``<= tau``) put at its best level, the most common ``k_true - k``
-  of its pixels (``research/learned_regions.py`` does it for large regions only): how much a perfect decision over
-  these regions could give;
+  of its pixels: how much a perfect decision over these regions could give;
 - **energy**: the cost ``region_moves`` lowers (level costs ``-log p(k)`` plus every pair's cost of its jump, the
-  band's ``_MAX_COST`` outside it), of the truth (aligned to the result's offset) against the result's: where the
+  band's ``MAX_COST`` outside it), of the truth (aligned to the result's offset) against the result's: where the
   truth costs more, no search over this energy finds it;
 - **head on errors**: how often the level head's most likely level is the true one on the values the result gets
   wrong, and how often overall;
@@ -41,15 +41,16 @@ from scipy import ndimage
 from torch_modulo import protocols
 from torch_modulo.singleshot.grid import grid_components
 from torch_modulo.singleshot.learned import (
-    _DIRECTIONS,
-    _MAX_COST,
     BAND,
-    _pair_costs,
+    DIRECTIONS,
+    MAX_COST,
     decode_jumps,
+    load_levels,
     load_model,
+    pair_costs,
     predict_jumps,
+    region_moves,
 )
-from torch_modulo.singleshot.levels import load_levels, region_moves
 
 BITS = 8
 PERIOD = 1 << BITS
@@ -64,7 +65,7 @@ def offset(d: np.ndarray) -> int:
 
 def regions(table: np.ndarray, tau: float) -> tuple[int, np.ndarray]:
     """The regions joined by pairs whose least cost in ``table`` ((2, K, H, W)) is at most ``tau``: count, (H, W)."""
-    count, flat = grid_components(*(table[d].min(axis=0)[a] <= tau for d, (a, _) in enumerate(_DIRECTIONS)))
+    count, flat = grid_components(*(table[d].min(axis=0)[a] <= tau for d, (a, _) in enumerate(DIRECTIONS)))
     return count, flat.reshape(table.shape[-2:])
 
 
@@ -86,14 +87,14 @@ def energy(m: np.ndarray, k: np.ndarray, table: np.ndarray, first: np.ndarray, u
     """``region_moves``' cost of ``k`` (weight 1): the level costs' sum and the pairs' sum."""
     levels = u.shape[0]
     level = float(np.take_along_axis(u, np.clip(k, 0, levels - 1)[None], 0).astype(np.float64).sum())
-    costs = _pair_costs(m, k, np.clip(table, 0.0, _MAX_COST).astype(np.float64), first, PERIOD, 0, 0)
+    costs = pair_costs(m, k, np.clip(table, 0.0, MAX_COST).astype(np.float64), first, PERIOD, 0, 0)
     return level, float(sum(c.sum() for c in costs))
 
 
 def pair_jumps(m: np.ndarray, k: np.ndarray) -> list[np.ndarray]:
     """Per direction (right, down), the jump ``n`` of every pair under ``k``: ``I_j - I_i = w(m_j - m_i) + n 2^N``."""
     out = []
-    for a, b in _DIRECTIONS:
+    for a, b in DIRECTIONS:
         wd = np.mod(m[b] - m[a] + PERIOD // 2, PERIOD) - PERIOD // 2
         out.append((m[b] + PERIOD * k[b] - m[a] - PERIOD * k[a] - wd) // PERIOD)
     return out
@@ -116,7 +117,7 @@ def border_report(
     Returns:
         ``share`` and ``offset`` of the wrong level, ``pairs`` on its border, ``net picks truth`` / ``net picks
         result`` (the most likely jump is the truth's / the result's), ``truth cost`` / ``result cost`` (sums of
-        ``-log p`` over the border, :data:`_MAX_COST` outside the band), ``small steps`` (true steps below half a
+        ``-log p`` over the border, :data:`MAX_COST` outside the band), ``small steps`` (true steps below half a
         period) and ``small steps read`` (those whose most likely jump is the truth's).
     """
     true_k = truth // PERIOD
@@ -126,12 +127,12 @@ def border_report(
     if not counts.size or counts.max() < BORDER_SHARE * d.size:
         return None
     wrong = int(values[counts.argmax()])
-    costs_truth = _pair_costs(m, true_k, table, first, PERIOD, 0, 0)  # a pair's cost depends on its jump alone
-    costs_result = _pair_costs(m, k, table, first, PERIOD, 0, 0)
+    costs_truth = pair_costs(m, true_k, table, first, PERIOD, 0, 0)  # a pair's cost depends on its jump alone
+    costs_result = pair_costs(m, k, table, first, PERIOD, 0, 0)
     out = {"share": float(counts.max() / d.size), "offset": wrong}
     sums = defaultdict(float)
     jumps_truth, jumps_result = pair_jumps(m, true_k), pair_jumps(m, k)
-    for direction, (a, b) in enumerate(_DIRECTIONS):
+    for direction, (a, b) in enumerate(DIRECTIONS):
         jt, jr = jumps_truth[direction], jumps_result[direction]
         border = ((d[a] == 0) & (d[b] == wrong)) | ((d[a] == wrong) & (d[b] == 0))
         likely = first[direction][a] + BAND

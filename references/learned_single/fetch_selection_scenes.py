@@ -6,7 +6,7 @@ the package from the npm registry (checked against its published sha512), decode
 night, studio, sunrise, sunset) and writes them as EXR files to ``OUT/polyhaven-selection/``. Weights can then be
 compared on scenes that were never trained on without looking at the 13 validation scenes::
 
-    python references/learned_single/fetch_selection_scenes.py /tmp/selection
+    python -m references.learned_single.fetch_selection_scenes /tmp/selection
     python benchmarks/bench_single.py --data /tmp/selection --methods learned learned:weights=OUT/edge_jump.pt
 
 Nothing is written inside the repository, and an existing file is never overwritten.

@@ -1,8 +1,8 @@
 """Train the edge-jump network of ``unwrap_single(method="learned")``: writes its weights and a summary of the run.
 
-One command, seeded:
+One command, seeded, from the repository root:
 
-    python references/learned_single/train.py --out torch_modulo/singleshot/weights --minutes 60
+    python -m references.learned_single.train --out torch_modulo/singleshot/weights --minutes 60
 
 Training pairs are built on the fly: a random crop of a radiance map (random scale, flips and quarter turns), seen
 as luminance or RGB, scaled so that its brightest region rolls over 2 to 20 times, captured with the library's own
@@ -11,7 +11,7 @@ optionally with shot and read noise). With ``--mosaic``, a share of the samples 
 by ``unwrap_single(..., cfa=...)``: mosaicked, wrapped and interpolated on the circle (:func:`mosaic_pair`).
 Radiance maps come ONLY from the CC0/BSD scenes
 (``protocols.list_scenes(DEV_SCENES, split="train")``: polyhaven-cc0 and openexr-images) and from procedural
-scenes (:mod:`procedural`): the validation scenes are never read here.
+scenes (:mod:`references.learned_single.procedural`): the validation scenes are never read here.
 
 The loss is ``learned.edge_loss``: cross-entropy over the jump of every horizontal and vertical pair, weighted up
 on the pairs whose wrapped step is wrong. Adam with a cosine learning rate over ``--steps`` (or over as many steps
@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,15 +32,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from procedural import procedural_scene  # noqa: E402
-
-from torch_modulo import protocols  # noqa: E402
-from torch_modulo.capture import capture_intensity, modulo_wrap  # noqa: E402
-from torch_modulo.cfa import CFA_PATTERNS, demosaic, interpolate_wrapped, mosaic  # noqa: E402
-from torch_modulo.singleshot.learned import EdgeJumpNet, edge_features, edge_loss, edge_targets  # noqa: E402
-from torch_modulo.tonemap import luminance  # noqa: E402
+from references.learned_single.procedural import procedural_scene
+from torch_modulo import protocols
+from torch_modulo.capture import capture_intensity, modulo_wrap
+from torch_modulo.cfa import CFA_PATTERNS, demosaic, interpolate_wrapped, mosaic
+from torch_modulo.singleshot.learned import EdgeJumpNet, edge_features, edge_loss, edge_targets
+from torch_modulo.tonemap import luminance
 
 BITS = 8
 PERIOD = 2**BITS

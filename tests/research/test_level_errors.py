@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from research import level_errors
-from torch_modulo.singleshot.levels import LEVELS
+from torch_modulo.singleshot.learned import LEVELS
 
 
 def _halves() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
