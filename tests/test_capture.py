@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from torch import nn
 
 import torch_modulo as tm
-from torch_modulo.capture import CPU_TILE
+from torch_modulo._chunks import CPU_CHUNK, chunk_on_cpu, column_chunks
 
 
 def _radiance(shape: tuple[int, ...], device: torch.device, dtype: torch.dtype, seed: int = 0) -> torch.Tensor:
@@ -41,9 +41,9 @@ class TestModuloWrap:
         out = tm.modulo_wrap(counts, 8)
         assert out.shape == counts.shape and out.dtype == dtype and out.device == counts.device
 
-    def test_large_tensor_uses_tiles_and_matches_remainder(self) -> None:
-        # More than one CPU tile, with rows of unequal tiles, checked against torch.remainder.
-        counts = torch.floor(_radiance((3, 1, 7, CPU_TILE // 5), torch.device("cpu"), torch.float32) * 97)
+    def test_large_tensor_uses_chunks_and_matches_remainder(self) -> None:
+        # More than one CPU chunk, with rows of unequal chunks, checked against torch.remainder.
+        counts = torch.floor(_radiance((3, 1, 7, CPU_CHUNK // 5), torch.device("cpu"), torch.float32) * 97)
         assert torch.equal(tm.modulo_wrap(counts, 8), torch.remainder(counts, 256.0))
 
     def test_gradient_passes_through(self, device: torch.device) -> None:
@@ -90,7 +90,7 @@ class TestCaptureModulo:
         for i, tau in enumerate(taus.tolist()):
             assert torch.equal(out[i], tm.capture_modulo(radiance[i], tau, bits=8))
 
-    @pytest.mark.parametrize("shape", [(4,), (3, 5, 6), (2, 3, 5, 6), (0, 3, 5, 6), (2, 1, 1, CPU_TILE + 7)])
+    @pytest.mark.parametrize("shape", [(4,), (3, 5, 6), (2, 3, 5, 6), (0, 3, 5, 6), (2, 1, 1, CPU_CHUNK + 7)])
     def test_matches_definition(self, shape: tuple[int, ...], device: torch.device, dtype: torch.dtype) -> None:
         radiance = _radiance(shape, device, dtype)
         expected = torch.remainder(torch.floor(radiance * 37.0), 256.0)
@@ -294,14 +294,28 @@ class TestStraightThroughIsABool:
                 module(1.0, 8, straight_through=flag)  # type: ignore[arg-type]
 
 
-def test_tiling_is_importable_from_capture_and_tiling() -> None:
-    from torch_modulo import _tiling
-    from torch_modulo.capture import column_tiles
+class TestChunks:
+    """The CPU chunks of the element-wise kernels (torch_modulo/_chunks.py)."""
 
-    assert column_tiles is _tiling.column_tiles and CPU_TILE == _tiling.CPU_TILE
-    tiles = column_tiles(CPU_TILE * 3 + 5, 1)
-    assert tiles[0] == slice(0, CPU_TILE) and tiles[-1].stop == CPU_TILE * 3 + 5
-    assert column_tiles(0, 4) == []
+    def test_column_chunks_cover_the_columns(self) -> None:
+        chunks = column_chunks(CPU_CHUNK * 3 + 5, 1)
+        assert chunks == [slice(i * CPU_CHUNK, min((i + 1) * CPU_CHUNK, CPU_CHUNK * 3 + 5)) for i in range(4)]
+        assert column_chunks(0, 4) == []
+
+    def test_column_chunks_share_the_elements_between_rows(self) -> None:
+        # 8 elements per chunk over 2 rows: 4 columns each, the last one shorter.
+        assert column_chunks(10, 2, chunk=8, min_width=1) == [slice(0, 4), slice(4, 8), slice(8, 10)]
+        # min_width wins over a chunk too small for the rows; a single wide chunk when n is below it.
+        assert column_chunks(10, 100, chunk=8, min_width=3) == [slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 10)]
+        assert column_chunks(5, 1, chunk=8, min_width=64) == [slice(0, 5)]
+
+    def test_chunk_on_cpu(self) -> None:
+        x = torch.ones(3)
+        assert chunk_on_cpu(x, x.clone())
+        assert not chunk_on_cpu(x, x.clone().requires_grad_())
+        with torch.no_grad():
+            assert chunk_on_cpu(x.clone().requires_grad_())
+        assert not chunk_on_cpu(torch.ones(3, device="meta"))
 
 
 @pytest.mark.parametrize("capture", [tm.capture_modulo, tm.capture_intensity])

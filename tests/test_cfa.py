@@ -33,6 +33,7 @@ from torch_modulo.sensors import (
     NoiseModel,
     SimulatedIntensitySensor,
     SimulatedModuloSensor,
+    fixed_pattern_gain,
     simulate_capture,
     write_frames,
 )
@@ -346,7 +347,17 @@ class TestSimulated:
         plain = sensor_type(bits=8, noise=NoiseModel(prnu=0.02), seed=3)(mosaic(rgb, "BGGR"), [1.0, 16.0])
         assert torch.equal(stack.moduli, plain.moduli)  # gain and noise per photosite, same draws
         assert plain.cfa is None and "cfa" not in plain.metadata
-        assert sensor.gain_map((1, 8, 8), "cpu", torch.float32) is not None
+        # one gain per photosite of the mosaic, (1, H, W), drawn from the sensor's fpn_seed (seed + 1)
+        gain = sensor.gain_map((1, 8, 8), "cpu", torch.float32)
+        assert sensor.fpn_seed == 4
+        assert torch.equal(gain, fixed_pattern_gain((1, 8, 8), 0.02, seed=4))
+        assert float((gain - 1).abs().max()) > 0  # a pattern, not a flat gain
+        wrap = sensor_type is SimulatedModuloSensor
+        draws = sensor.manual_seed(3).generator("cpu")  # the capture again, by hand: that gain, the same draws
+        again = simulate_capture(
+            mosaic(rgb, "BGGR"), [1.0, 16.0], 8, sensor.noise, wrap=wrap, generator=draws, gain=gain
+        )
+        assert torch.equal(stack.frames, again)
 
     def test_unbatched(self) -> None:
         stack = SimulatedModuloSensor(noise=None, cfa="RGGB")(_rgb((3, 4, 6)).float(), [1.0, 4.0])

@@ -11,7 +11,7 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
 import torch_modulo as tm
-from torch_modulo.capture import CPU_TILE
+from torch_modulo._chunks import CPU_CHUNK
 from torch_modulo.sensors import FrameStack
 
 TAUS = [1.0, 16.0, 256.0]
@@ -40,9 +40,9 @@ class TestCaptureStack:
         assert out.shape == (shape[0], len(TAUS), *shape[1:]) and out.dtype == dtype and out.device == x.device
         assert torch.equal(out, expected)
 
-    def test_several_tiles_and_non_contiguous_input(self) -> None:
+    def test_several_chunks_and_non_contiguous_input(self) -> None:
         cpu = torch.device("cpu")
-        x = _radiance((2, 3, 5, CPU_TILE // 11), cpu, torch.float32)
+        x = _radiance((2, 3, 5, CPU_CHUNK // 11), cpu, torch.float32)
         expected = torch.stack([tm.capture_modulo(x, t, 8) for t in TAUS], dim=1)
         assert torch.equal(tm.capture_stack(x, TAUS, 8), expected)
         xt = x.transpose(-1, -2)
@@ -192,6 +192,36 @@ class TestChain:
         for kwargs in ({"return_counts": True}, {"method": "paper"}):
             layer = tm.MultiExposureUnwrap(bits=8, **kwargs)  # type: ignore[arg-type]
             assert torch.equal(layer(stack), tm.unwrap_multi(stack.moduli, TAUS, 8, **kwargs))  # type: ignore[arg-type]
+
+
+class TestStackForms:
+    """One stack, three forms: the function's tensor, the layer's ExposureStack, the sensor's FrameStack."""
+
+    def test_function_gives_the_layers_moduli_as_a_tensor(self) -> None:
+        x = _radiance((2, 3, 4, 4), torch.device("cpu"), torch.float32)
+        moduli = tm.capture_stack(x, TAUS, 8)
+        layer_form = tm.MultiExposureCapture(TAUS, bits=8)(x)
+        assert type(moduli) is torch.Tensor and type(layer_form) is tm.ExposureStack
+        assert torch.equal(layer_form.moduli, moduli)
+        assert torch.equal(layer_form.exposures, torch.tensor(TAUS, dtype=torch.float64))
+
+    def test_conversions_decode_the_same(self) -> None:
+        x = _radiance((2, 3, 4, 4), torch.device("cpu"), torch.float32)
+        layer_form = tm.MultiExposureCapture(TAUS, bits=8)(x)
+        sensor_form = FrameStack(*layer_form, bits=8)
+        back = sensor_form.to_exposure_stack()
+        assert back.moduli is layer_form.moduli and torch.equal(back.exposures, layer_form.exposures)
+        expected = _functional(x, TAUS, 8)
+        unwrap = tm.MultiExposureUnwrap(bits=8)
+        for form in (layer_form, sensor_form, back):
+            assert torch.equal(unwrap(form), expected)
+        assert torch.equal(tm.unwrap_multi(sensor_form.frames, sensor_form.exposures, sensor_form.bits), expected)
+
+    def test_unwrap_with_exposures_refuses_a_stack(self) -> None:
+        # Explicit exposures go with a moduli tensor; a stack alongside them is refused as unwrap_multi refuses it.
+        layer_form = tm.MultiExposureCapture(TAUS, bits=8)(_radiance((1, 1, 2, 2), torch.device("cpu"), torch.float32))
+        with pytest.raises(TypeError, match="moduli must be a torch.Tensor; got ExposureStack"):
+            tm.MultiExposureUnwrap(bits=8)(layer_form, TAUS)
 
 
 class _Scenes(Dataset):

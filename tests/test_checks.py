@@ -8,7 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from torch_modulo._checks import check_bits, check_choice, check_flag, check_int, check_real, exposure_tensor
+from torch_modulo._checks import (
+    all_integers,
+    check_bits,
+    check_choice,
+    check_flag,
+    check_floating,
+    check_int,
+    check_real,
+    exposure_tensor,
+)
 
 
 class TestCheckInt:
@@ -132,3 +141,34 @@ class TestNumpyInputs:
         for bad, error in ((np.array([True]), TypeError), (np.array(["a"]), TypeError), (np.array([0.0]), ValueError)):
             with pytest.raises(error, match="exposures"):
                 exposure_tensor(bad, like, "exposures")
+
+
+class TestCheckFloating:
+    def test_returns_the_tensor(self) -> None:
+        x = torch.zeros(2)
+        assert check_floating(x, "x") is x
+
+    @pytest.mark.parametrize(
+        ("value", "match"),
+        [([0.0], "x must be a torch.Tensor; got list"), (torch.zeros(2, dtype=torch.long), "got dtype torch.int64")],
+    )
+    def test_refuses(self, value: object, match: str) -> None:
+        with pytest.raises(TypeError, match=match):
+            check_floating(value, "x")
+
+
+class TestAllIntegers:
+    @pytest.mark.parametrize("chunk", [1, 3, 16, 1 << 16])
+    def test_any_chunk_size_finds_the_one_fraction(self, chunk: int) -> None:
+        x = torch.arange(40, dtype=torch.float32)
+        assert all_integers(x, chunk=chunk)
+        for position in (0, 17, 39):  # first, middle and last chunk
+            y = x.clone()
+            y[position] += 0.5
+            assert not all_integers(y, chunk=chunk), (chunk, position)
+
+    def test_integer_dtypes_and_non_contiguous_input(self) -> None:
+        assert all_integers(torch.tensor([1, 2, 3]))
+        x = torch.arange(12.0).reshape(3, 4).t()
+        x[1, 2] = 0.25
+        assert not all_integers(x, chunk=5) and all_integers(x.floor(), chunk=5)

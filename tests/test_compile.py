@@ -40,7 +40,7 @@ def _stack() -> tm.ExposureStack:
 
 
 #: name -> (layer factory, inputs factory, exact): exact layers compute integers and match eager bit for bit; the
-#: tone maps match to float rounding (on the CPU the eager path runs in tiles with another operation order).
+#: tone maps match to float rounding (on the CPU the eager path runs in chunks with another operation order).
 CASES: dict[str, tuple[Callable[[], nn.Module], Callable[[], tuple[object, ...]], bool]] = {
     "ModuloWrap": (lambda: tm.ModuloWrap(bits=8), lambda: (torch.floor(_x() * 97),), True),
     "ModuloCapture": (lambda: tm.ModuloCapture(exposure=40.0, bits=8), lambda: (_x(),), True),

@@ -10,7 +10,10 @@ import torch
 
 from torch_modulo import io
 from torch_modulo.cli import main
-from torch_modulo.demo import run_demo
+from torch_modulo.demo import LOW_CONFIDENCE, SCENE_PEAK, run_demo
+from torch_modulo.metrics import exact_k_map, exact_k_share
+from torch_modulo.singleshot import unwrap_confidence
+from torch_modulo.tonemap import REC709_LUMA
 
 
 def _scene(path: Path) -> Path:
@@ -32,7 +35,8 @@ def test_run_demo_writes_every_file_and_true_numbers(tmp_path: Path) -> None:
     assert summary["single_shot"]["exact_k"] == 1.0
     assert summary["single_shot"]["method"] == "learned"
     assert summary["single_shot"]["low_confidence_share"] == 0.0  # smooth: every level is determined
-    assert summary["single_shot"]["wrong_k_flagged_low_confidence"] == 1.0  # (nothing wrong to flag)
+    # nothing is wrong, so every wrong value is (vacuously) flagged: the share is 1, not 0/0
+    assert summary["single_shot"]["wrong_k_flagged_low_confidence"] == 1.0
     for name in summary["files"]:
         assert Path(name).is_file(), name
     written = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -40,6 +44,29 @@ def test_run_demo_writes_every_file_and_true_numbers(tmp_path: Path) -> None:
     assert any("single shot" in line for line in lines)
     comparison = io.read_image(tmp_path / "out" / "comparison.png")
     assert comparison.shape[0] == 3 and comparison.shape[2] == 2 * 96
+
+
+def test_the_confidence_flags_are_scored_against_the_wrong_counts(tmp_path: Path) -> None:
+    """A rough bright window (steps of several periods) defeats single shot on part of it; the summary's shares are
+    those of the written result against the scene's true counts."""
+    y, x = torch.meshgrid(torch.linspace(-1, 1, 40), torch.linspace(-1, 1, 96), indexing="ij")
+    base = 0.01 + (x + 1) / 2 + 0.2 * torch.exp(-(x**2 + y**2) * 4)
+    base[12:28, 30:60] += 0.5 + 0.5 * torch.rand(16, 30, generator=torch.Generator().manual_seed(0))
+    hdr = torch.stack([base, 0.8 * base, 0.6 * base])
+    io.write_image(tmp_path / "window.exr", hdr)
+    single = run_demo(tmp_path / "out", tmp_path / "window.exr", workers=1, log=lambda _: None)["single_shot"]
+    # The demo's truth: luminance's 99.9th percentile at SCENE_PEAK counts, floored (exposure 1).
+    luma = torch.einsum("chw,c->hw", hdr, torch.tensor(REC709_LUMA, dtype=hdr.dtype))
+    truth = torch.floor(hdr * (SCENE_PEAK / float(torch.quantile(luma.flatten(), 0.999))))[None]
+    restored = io.read_image(tmp_path / "out" / "single_shot.exr")[None]
+    wrong = ~exact_k_map(restored, truth, 8)
+    low = unwrap_confidence(restored, 8) < LOW_CONFIDENCE
+    assert single["exact_k"] == pytest.approx(float(exact_k_share(restored, truth, 8)[0]), abs=1e-12)
+    assert 0 < int(wrong.sum()) < wrong.numel() // 4  # part of the window is wrong, the rest of the scene right
+    assert single["low_confidence_share"] == pytest.approx(float(low.double().mean()), abs=1e-12)
+    flagged = int((wrong & low).sum()) / int(wrong.sum())
+    assert single["wrong_k_flagged_low_confidence"] == pytest.approx(flagged, abs=1e-6)
+    assert 0.0 < flagged < 1.0  # the map flags some of the wrong values, not all
 
 
 def test_cli_demo_with_the_papers_graph_cut(tmp_path: Path) -> None:

@@ -28,6 +28,13 @@ def _load(name: str) -> ModuleType:
     return importlib.import_module(name)
 
 
+def _whole(value: float) -> int:
+    """``value`` as an int, asserting that it is one (a count recovered from a reported share or score)."""
+    count = round(value)
+    assert abs(value - count) < 1e-6 * max(1.0, abs(value)), value
+    return count
+
+
 def _run(name: str, tmp_path: Path, *extra: str) -> dict:
     result = _load(name).main(["--quick", "--out", str(tmp_path), *extra])
     png = Path(result["png"])
@@ -134,10 +141,16 @@ class TestFig09SingleShot:
     def test_scores_are_sane(self, tmp_path: Path) -> None:
         result = _run("fig09_single_shot", tmp_path)
         (scene,) = result["scenes"]
-        assert 0.5 < scene["exact_k"] < 1.0
-        assert 0.0 < scene["wrapped_share"] < 1.0
-        assert 0.0 <= scene["exact_k_wrapped"] <= 1.0
-        assert 10.0 < scene["psnr"] < 60.0
+        h, w = scene["shape"]
+        n = h * w  # one grey plane
+        wrong, rolled = _whole((1 - scene["exact_k"]) * n), _whole(scene["wrapped_share"] * n)
+        wrong_rolled = _whole((1 - scene["exact_k_wrapped"]) * rolled)
+        assert 0 < wrong < n / 2 and 0 < rolled < n and wrong_rolled <= wrong
+        # Restored and true counts share the modulus, so each aligned error is a whole number m of periods (256):
+        # the PSNR (peak 4095) implies sum(m^2) = n 4095^2 / (256^2 10^(PSNR/10)), a whole number >= the wrong
+        # values (m^2 >= 1 on each).
+        squares = _whole(n * 4095**2 / (256**2 * 10 ** (scene["psnr"] / 10)))
+        assert squares >= wrong
         assert scene["energy_found"] > 0 and scene["energy_truth"] > 0
         assert not result["holds"]
 

@@ -9,11 +9,40 @@ from pathlib import Path
 import pytest
 
 README = Path(__file__).resolve().parents[1] / "README.md"
-BLOCKS = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+TEXT = README.read_text()
+BLOCKS = re.findall(r"```python\n(.*?)```", TEXT, flags=re.S)
 
 
-def test_readme_has_examples() -> None:
-    assert len(BLOCKS) >= 4, "README.md lost its python examples"
+def _sections_with_examples() -> list[str]:
+    """The ``## `` heading each python example stands under, in order ("" for the first screen, above them all)."""
+    heading, found = "", []
+    for line in TEXT.splitlines():
+        if line.startswith("## "):
+            heading = line[3:]
+        elif line.startswith("```python"):
+            found.append(heading)
+    return found
+
+
+def test_every_python_block_is_run() -> None:
+    # Each fence the README opens is one block the test below runs: none is skipped by an odd fence.
+    assert len(BLOCKS) == TEXT.count("```python") == len(_sections_with_examples())
+    assert all(block.strip() for block in BLOCKS)
+
+
+def test_readme_shows_each_subject_with_an_example() -> None:
+    sections = _sections_with_examples()
+    assert sections[0] == "", "the first screen lost its example"
+    subjects = ("Multi-shot", "Single shot", "Colour modulo cameras", "In PyTorch pipelines", "Sensors")
+    for subject in subjects:
+        assert any(s.startswith(subject) for s in sections), f"no python example under the {subject!r} section"
+
+
+def test_the_first_screen_example_checks_its_results() -> None:
+    first = BLOCKS[0]
+    assert "import torch_modulo as tm" in first
+    checks = [line for line in first.splitlines() if line.startswith("assert ")]
+    assert len(checks) >= 2, "the quick-start example should assert that multi and single shot are exact"
 
 
 @pytest.mark.parametrize(

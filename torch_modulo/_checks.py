@@ -268,9 +268,9 @@ def check_tensor(x: object, name: str) -> torch.Tensor:
     return x
 
 
-def check_floating(x: torch.Tensor, name: str) -> torch.Tensor:
-    """Raise ``TypeError`` unless ``x`` is a floating-point tensor."""
-    check_tensor(x, name)
+def check_floating(x: object, name: str) -> torch.Tensor:
+    """Raise ``TypeError`` unless ``x`` is a floating-point tensor; return it."""
+    x = check_tensor(x, name)
     if not x.is_floating_point():
         raise TypeError(f"{name} must be a floating-point tensor; got dtype {x.dtype} (convert with .float())")
     return x
@@ -368,17 +368,18 @@ def check_modulus(modulus: torch.Tensor, bits: int, name: str = "modulus") -> to
     return modulus
 
 
-def all_integers(x: torch.Tensor, tile: int = 1 << 16) -> bool:
-    """True when every value of ``x`` is an integer; on the CPU it compares cache-sized tiles with one scratch."""
+def all_integers(x: torch.Tensor, chunk: int = 1 << 16) -> bool:
+    """True when every value of ``x`` is an integer; on the CPU it compares cache-sized chunks of ``chunk`` elements
+    with one scratch buffer."""
     x = x.detach()
     if not x.is_floating_point():
         return True
-    if x.device.type != "cpu" or x.numel() <= tile:
+    if x.device.type != "cpu" or x.numel() <= chunk:
         return bool(torch.equal(x, torch.floor(x)))
     flat = x.reshape(-1)
-    scratch = torch.empty(tile, dtype=x.dtype)
-    for start in range(0, flat.numel(), tile):
-        part = flat[start : start + tile]
+    scratch = torch.empty(chunk, dtype=x.dtype)
+    for start in range(0, flat.numel(), chunk):
+        part = flat[start : start + chunk]
         if not torch.equal(torch.floor(part, out=scratch[: part.numel()]), part):
             return False
     return True

@@ -1,9 +1,13 @@
 """Capture models: Eq. 1 of the paper and the quantised modulo and intensity (conventional) sensors.
 
-:func:`capture_stack` and :class:`MultiExposureCapture` take one radiance at several exposures and return the
-(B, M, C, H, W) stack of modulus images that :func:`~torch_modulo.unwrap_multi` decodes; the layer returns it as
-an :class:`ExposureStack` (moduli and exposures), which :class:`~torch_modulo.MultiExposureUnwrap` takes as its
-one input, so ``nn.Sequential(MultiExposureCapture(...), MultiExposureUnwrap(...))`` chains.
+:func:`capture_stack` and :class:`MultiExposureCapture` take one radiance at several exposures. The function
+returns a plain tensor, the (B, M, C, H, W) stack of modulus images that :func:`~torch_modulo.unwrap_multi`
+decodes; the layer returns it with its exposures as an :class:`ExposureStack`, which
+:class:`~torch_modulo.MultiExposureUnwrap` takes as its one input, so
+``nn.Sequential(MultiExposureCapture(...), MultiExposureUnwrap(...))`` chains. A sensor returns the third form,
+a :class:`~torch_modulo.sensors.FrameStack`, which adds the bit depth, the kind of sensor, the colour filter array
+and metadata; ``FrameStack(*exposure_stack, bits=N)`` and
+:meth:`~torch_modulo.sensors.FrameStack.to_exposure_stack` convert between the two.
 
 A noise-free sensor with exposure ``tau`` reads the counts ``I = floor(tau * E)`` of the radiance ``E``. A
 modulo sensor keeps the low ``bits`` bits, ``I_m = mod(I, 2**bits)`` (Eq. 1); a conventional ("intensity")
@@ -25,11 +29,11 @@ Precision:
 Speed:
     Without autograd the outputs are computed in place in a single freshly allocated buffer with cheap
     floating-point operations (``x - P * floor(x / P)`` instead of ``torch.remainder``); on the CPU the work runs
-    tile by tile through cache-sized buffers (:mod:`torch_modulo._tiling`), so these layers cost about as much as
+    chunk by chunk through cache-sized buffers (:mod:`torch_modulo._chunks`), so these layers cost about as much as
     ``tensor.clone()``.
 
 Compilation:
-    Under ``torch.compile`` the layers use whole-tensor operations with the same arithmetic (no CPU tiles), and
+    Under ``torch.compile`` the layers use whole-tensor operations with the same arithmetic (no CPU chunks), and
     with :func:`torch_modulo.validation` off they hold no data-dependent branch, so
     ``torch.compile(layer, fullgraph=True)`` traces them in one graph. The compiled output equals the eager one.
 """
@@ -55,8 +59,7 @@ from torch_modulo._checks import (
     nonnegative_max,
     validation_enabled,
 )
-from torch_modulo._tiling import CPU_TILE as CPU_TILE  # re-exported: the tiling used to live here
-from torch_modulo._tiling import column_tiles as column_tiles
+from torch_modulo._chunks import column_chunks
 
 __all__ = [
     "ExposureStack",
@@ -76,7 +79,7 @@ def _needs_grad(*tensors: torch.Tensor) -> bool:
 
 
 def _compiling() -> bool:
-    """Whether ``torch.compile`` is tracing: take whole-tensor operations instead of the tiled CPU loops."""
+    """Whether ``torch.compile`` is tracing: take whole-tensor operations instead of the chunked CPU loops."""
     return torch.compiler.is_compiling()
 
 
@@ -109,7 +112,7 @@ def _as_rows(x: torch.Tensor, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Te
 def _elementwise_(
     x: torch.Tensor, tau: torch.Tensor | float, period: float, *, floor: bool, clip_top: float | None
 ) -> torch.Tensor:
-    """``wrap(floor(tau * x))`` (or clip instead of wrap) without autograd, tiled in cache on the CPU."""
+    """``wrap(floor(tau * x))`` (or clip instead of wrap) without autograd, chunk by chunk in cache on the CPU."""
     if _compiling():
         y = x * tau
         if floor:
@@ -124,9 +127,9 @@ def _elementwise_(
         return y.clamp_(max=clip_top) if clip_top is not None else _wrap_rows_(y, period, torch.empty_like(y))
     flat, t = rows
     out = torch.empty_like(flat)
-    tiles = column_tiles(flat.shape[1], flat.shape[0])
-    scratch = torch.empty((flat.shape[0], tiles[0].stop - tiles[0].start if tiles else 0), dtype=x.dtype)
-    for cols in tiles:
+    chunks = column_chunks(flat.shape[1], flat.shape[0])
+    scratch = torch.empty((flat.shape[0], chunks[0].stop - chunks[0].start if chunks else 0), dtype=x.dtype)
+    for cols in chunks:
         o = out[:, cols]
         torch.mul(flat[:, cols], t, out=o)
         if floor:
@@ -344,6 +347,7 @@ class _ExactExposures(nn.Module):
 
 class _Capture(_ExactExposures):
     _exact_buffers = ("exposure",)
+    exposure: torch.Tensor
 
     def __init__(self, exposure: float | torch.Tensor = 1.0, bits: int = 8, straight_through: bool = False) -> None:
         super().__init__()
@@ -389,12 +393,14 @@ class IntensityCapture(_Capture):
 
 
 class ExposureStack(NamedTuple):
-    """Modulus images of one radiance taken at several exposures, with those exposures.
+    """Modulus images of one radiance taken at several exposures, with those exposures: the layers' form of a stack.
 
     What :class:`MultiExposureCapture` returns and :class:`~torch_modulo.MultiExposureUnwrap` takes as its one
     input. A named tuple, so it unpacks (``moduli, exposures = stack``), pickles, and batches in a ``DataLoader``
     (the default collate stacks both fields: (M, C, H, W) samples give (B, M, C, H, W) moduli and (B, M)
-    exposures).
+    exposures). The functions take its fields as tensors (``unwrap_multi(*stack, bits)``);
+    ``FrameStack(*stack, bits=N)`` makes the sensors' form of it, which also records the bit depth, and
+    :meth:`~torch_modulo.sensors.FrameStack.to_exposure_stack` gives it back.
 
     Example:
         >>> stack = MultiExposureCapture(exposures=[1.0, 8.0], bits=8)(torch.tensor([[[[3.0, 40.0]]]]))
@@ -421,16 +427,16 @@ def _stack_exposures(tau: torch.Tensor, batch: int, unbatched: bool) -> torch.Te
     raise ValueError(f"exposures must have shape {wanted} and M >= 1; got {tuple(tau.shape)}")
 
 
-def _stack_tiled(x: torch.Tensor, tau: torch.Tensor, period: float) -> torch.Tensor:
-    """CPU path of :func:`capture_stack`: each tile of the radiance is read from cache once per exposure."""
+def _stack_chunked(x: torch.Tensor, tau: torch.Tensor, period: float) -> torch.Tensor:
+    """CPU path of :func:`capture_stack`: each chunk of the radiance is read from cache once per exposure."""
     b = x.shape[0]
     flat = x.reshape(b, x[0].numel() if b else 0)
     m = tau.shape[1]
     rates = tau.reshape(tau.shape[0], m)  # (1 or B, M)
     out = torch.empty((b, m, flat.shape[1]), dtype=x.dtype)
-    tiles = column_tiles(flat.shape[1], b * m)
-    scratch = torch.empty((b, tiles[0].stop if tiles else 0), dtype=x.dtype)
-    for cols in tiles:
+    chunks = column_chunks(flat.shape[1], b * m)
+    scratch = torch.empty((b, chunks[0].stop if chunks else 0), dtype=x.dtype)
+    for cols in chunks:
         for i in range(m):
             o = out[:, i, cols]
             torch.mul(flat[:, cols], rates[:, i : i + 1], out=o).floor_()
@@ -450,8 +456,9 @@ def capture_stack(
     Frame ``i`` holds :math:`I_m^{(i)} = \mathrm{mod}(\lfloor \tau^{(i)} E \rfloor, 2^N)`.
 
     Equal to ``torch.stack([capture_modulo(radiance, t, bits) for t in exposures], dim=1)`` for (B, C, H, W)
-    radiance, in one pass that validates the radiance once. The result is what
-    :func:`~torch_modulo.unwrap_multi` decodes.
+    radiance, in one pass that validates the radiance once. The result is a plain tensor, what
+    :func:`~torch_modulo.unwrap_multi` decodes with the same exposures; the layer :class:`MultiExposureCapture`
+    returns it with its exposures as an :class:`ExposureStack`.
 
     Args:
         radiance: non-negative radiance ``E``, (B, C, H, W) or (C, H, W).
@@ -497,7 +504,7 @@ def capture_stack(
     elif _compiling() or x.device.type != "cpu" or not x.is_contiguous():
         out = _wrap(torch.floor(y * tau), period)
     else:
-        out = _stack_tiled(x, tau, period)
+        out = _stack_chunked(x, tau, period)
     return out[0] if unbatched else out
 
 
@@ -529,6 +536,7 @@ class MultiExposureCapture(_ExactExposures):
     """
 
     _exact_buffers = ("exposures",)
+    exposures: torch.Tensor
 
     def __init__(
         self,

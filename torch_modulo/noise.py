@@ -20,7 +20,7 @@ enter the decoding.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, overload
 
 import torch
 
@@ -121,6 +121,12 @@ class NoiseModel:
     def dark_counts(self) -> float:
         """Dark counts per unit exposure, ``D / q``."""
         return self.dark_current / self.electrons_per_count
+
+    @overload
+    def count_variance(self, counts: torch.Tensor) -> torch.Tensor: ...
+
+    @overload
+    def count_variance(self, counts: float) -> float: ...
 
     def count_variance(self, counts: float | torch.Tensor) -> float | torch.Tensor:
         """Variance, in counts squared, of a frame whose expected count (signal plus dark) is ``counts`` (>= 0).

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from hypothesis import strategies as st
 from multishot_helpers import ratios_to_taus, scene, stack
 
 import torch_modulo as tm
+from torch_modulo._chunks import CPU_CHUNK, column_chunks
 
 
 class TestUnwrapMulti:
@@ -128,8 +130,10 @@ class TestUnwrapMulti:
         empty = tm.unwrap_multi(moduli[:0], taus, 8, method)
         assert empty.shape == (0, 3, 6, 9)
 
-    def test_large_input_spans_several_tiles(self) -> None:
-        radiance = scene((3, 1, 300, 301), stops=16, seed=9) * 255
+    def test_large_input_spans_several_chunks(self) -> None:
+        shape = (3, 1, 2, CPU_CHUNK // 3 + 100)  # three CPU chunks per item, the last one partial
+        assert len(column_chunks(math.prod(shape[1:]), shape[0])) == 3
+        radiance = scene(shape, stops=16, seed=9) * 255
         taus = [1.0, 150.0, 22500.0]
         moduli = stack(radiance, taus, 8).float()
         counts = tm.unwrap_multi(moduli, taus, 8, return_counts=True)

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import pickle
 import re
 
 import numpy as np
 import pytest
 import torch
 
-from torch_modulo import capture_modulo
+from torch_modulo import ExposureStack, capture_modulo
 from torch_modulo.sensors import FrameStack
 
 
@@ -21,15 +22,15 @@ class TestFrameStack:
     def test_smoke(self) -> None:
         moduli = _stack()
         stack = FrameStack(moduli, [1.0, 4.0, 16.0], bits=8, metadata={"camera": "sim"})
-        assert stack.moduli is moduli  # no copy
-        assert stack.frames is moduli
+        assert stack.frames is moduli  # no copy
+        assert stack.moduli is moduli  # the same tensor under the modulo name
         assert stack.exposures.dtype == torch.float64
         assert stack.exposures.tolist() == [1.0, 4.0, 16.0]
         assert stack.bits == 8 and stack.kind == "modulo"
         assert stack.metadata == {"camera": "sim"}
         assert len(stack) == 2 and stack.batch_size == 2 and stack.num_exposures == 3
         assert stack.shape == (2, 3, 1, 4, 5) and stack.dtype == torch.float32 and stack.device.type == "cpu"
-        assert "FrameStack(moduli=(2, 3, 1, 4, 5) float32" in repr(stack)
+        assert "FrameStack(frames=(2, 3, 1, 4, 5) float32" in repr(stack)
 
     @pytest.mark.parametrize("shape", [(1, 1, 1, 1, 1), (3, 2, 3, 8, 6), (0, 2, 1, 3, 3)])
     def test_cardinality(self, shape: tuple[int, ...]) -> None:
@@ -57,8 +58,40 @@ class TestFrameStack:
         assert stack.metadata == {"list": [1, 2]}
 
     def test_intensity_kind(self) -> None:
-        stack = FrameStack(torch.full((1, 2, 1, 2, 2), 255.0), [1.0, 2.0], bits=8, kind="intensity")
+        frames = torch.full((1, 2, 1, 2, 2), 255.0)
+        stack = FrameStack(frames, [1.0, 2.0], bits=8, kind="intensity")
         assert stack.kind == "intensity"
+        assert stack.frames is frames and stack.moduli is frames  # the old name still works, without a warning
+        assert "kind='intensity'" in repr(stack)
+
+    def test_pickles(self) -> None:
+        stack = FrameStack(_stack(), [1.0, 2.0, 4.0], bits=8, metadata={"camera": "sim"}, kind="intensity")
+        assert pickle.loads(pickle.dumps(stack)) == stack
+
+
+class TestToExposureStack:
+    """The sensors' form of a stack to the layers' form, and back."""
+
+    def test_fields_are_the_frames_and_exposures(self) -> None:
+        moduli = _stack()
+        stack = FrameStack(moduli, [1.0, 4.0, 16.0], bits=8, metadata={"camera": "sim"})
+        layer_form = stack.to_exposure_stack()
+        assert type(layer_form) is ExposureStack
+        assert layer_form.moduli is moduli and layer_form.exposures is stack.exposures  # no copy
+        assert layer_form.exposures.tolist() == [1.0, 4.0, 16.0]
+
+    def test_per_item_exposures(self) -> None:
+        taus = torch.tensor([[1.0, 2.0, 4.0], [1.0, 3.0, 9.0]], dtype=torch.float64)
+        assert torch.equal(FrameStack(_stack(), taus).to_exposure_stack().exposures, taus)
+
+    def test_round_trip(self) -> None:
+        stack = FrameStack(_stack(), [1.0, 4.0, 16.0], bits=8)
+        assert FrameStack(*stack.to_exposure_stack(), bits=8) == stack
+
+    def test_intensity_stack_is_refused(self) -> None:
+        stack = FrameStack(torch.full((1, 2, 1, 2, 2), 255.0), [1.0, 2.0], bits=8, kind="intensity")
+        with pytest.raises(ValueError, match=r"holds modulus images; this stack is of kind='intensity' \(merge"):
+            stack.to_exposure_stack()
 
 
 class TestFrameStackErrors:

@@ -102,8 +102,8 @@ class TestContract:
         assert torch.allclose(ratio_out, ratio_in, rtol=1e-9)
 
     @pytest.mark.parametrize("name", GLOBAL)
-    def test_autograd_path_equals_cpu_tile_path(self, name: str) -> None:
-        # Wide enough for several tiles, with a last partial tile.
+    def test_autograd_path_equals_cpu_chunk_path(self, name: str) -> None:
+        # Wide enough for several chunks, with a last partial chunk.
         x = _hdr((8, 3, 256, 611), seed=11, stops=20, dtype=torch.float32)
         x[3, :, 5, :17] = 0.0
         fast = OPERATORS[name](x)
@@ -112,8 +112,8 @@ class TestContract:
         assert torch.allclose(fast, slow.detach(), atol=2e-6, rtol=0)
 
     @pytest.mark.parametrize("name", GLOBAL)
-    def test_tile_path_does_not_depend_on_thread_count(self, name: str) -> None:
-        x = _hdr((8, 3, 64, 611), seed=12, dtype=torch.float32)  # 10 tiles: two threads
+    def test_chunk_path_does_not_depend_on_thread_count(self, name: str) -> None:
+        x = _hdr((8, 3, 64, 611), seed=12, dtype=torch.float32)  # several chunks, on one thread and on two
         threads = torch.get_num_threads()
         try:
             torch.set_num_threads(1)

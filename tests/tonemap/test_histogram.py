@@ -245,7 +245,7 @@ class TestHistogramPrecision:
     the output.
     """
 
-    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("grad", [False, True], ids=["chunked", "autograd"])
     @pytest.mark.parametrize(("narrow", "tol"), [(torch.float16, 2e-3), (torch.bfloat16, 8e-3)])
     @pytest.mark.parametrize("scale", [1e-4, 3e-3, 1.0, 100.0])
     def test_half_equals_float32(self, scale: float, narrow: torch.dtype, tol: float, grad: bool) -> None:
@@ -267,7 +267,7 @@ class TestHistogramPrecision:
             assert out.dtype == torch.float16 and torch.isfinite(out).all()
             assert float((out.float() - expected).abs().max()) < 2e-3, scale
 
-    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("grad", [False, True], ids=["chunked", "autograd"])
     def test_float32_invariant_to_scale(self, grad: bool) -> None:
         x = _hdr((1, 3, 24, 40), seed=35, stops=16)  # 2**-8 .. 2**8
         expected = tonemap_histogram(x)
@@ -276,7 +276,7 @@ class TestHistogramPrecision:
             assert torch.isfinite(out).all()
             assert float((out.double() - expected).abs().max()) < 1e-4, scale
 
-    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("grad", [False, True], ids=["chunked", "autograd"])
     def test_float16_invariant_to_scale(self, grad: bool) -> None:
         # Powers of two that keep every value a normal float16 scale the half input exactly, so the result is the
         # float32 result of the unscaled input up to float16 rounding.

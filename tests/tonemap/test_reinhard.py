@@ -101,11 +101,11 @@ class TestReinhard:
 class TestReinhardPrecision:
     """Regression: dim half-precision input came out white (or NaN), and so did float32 at tiny scales.
 
-    The tiled path formed ``scale * scale / L_white**2`` in the input's dtype: ``scale**2`` overflowed float16 for
+    The chunked path formed ``scale * scale / L_white**2`` in the input's dtype: ``scale**2`` overflowed float16 for
     an image as dim as x 3e-3, and ``1 / y_max**2`` overflowed float32 for one as dim as x 1e-20.
     """
 
-    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("grad", [False, True], ids=["chunked", "autograd"])
     @pytest.mark.parametrize(("narrow", "tol"), [(torch.float16, 2e-3), (torch.bfloat16, 8e-3)])
     @pytest.mark.parametrize("scale", [1e-4, 3e-3, 1.0, 100.0])
     def test_half_equals_float32(self, scale: float, narrow: torch.dtype, tol: float, grad: bool) -> None:
@@ -128,7 +128,7 @@ class TestReinhardPrecision:
         assert float((out.float() - tonemap_reinhard(half.float())).abs().max()) < 2e-3
         assert abs(float(out.float().mean()) - float(tonemap_reinhard(x).mean())) < 2e-3
 
-    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("grad", [False, True], ids=["chunked", "autograd"])
     @pytest.mark.parametrize("scale", [1e-20, 1e-30])
     def test_float32_tiny_scale_matches_numpy_reference(self, scale: float, grad: bool) -> None:
         # The default delta (1e-6) dominates the log average of so dim an image: not scale invariant, but defined.
@@ -139,7 +139,7 @@ class TestReinhardPrecision:
         for i in range(2):
             assert np.abs(out[i].double().numpy() - reinhard_reference(x[i].numpy(), 0.18, None, 1e-6)).max() < 1e-5
 
-    @pytest.mark.parametrize("grad", [False, True], ids=["tiled", "autograd"])
+    @pytest.mark.parametrize("grad", [False, True], ids=["chunked", "autograd"])
     @pytest.mark.parametrize("white", [None, 3.0, float("inf")])
     @pytest.mark.parametrize("scale", [1e-20, 1e-30, 1e20, 1e30])
     def test_float32_invariant_to_scale_with_delta(self, scale: float, white: float | None, grad: bool) -> None:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 
 from torch_modulo._checks import check_finite, check_modulus
-from torch_modulo._tiling import column_tiles
+from torch_modulo._chunks import column_chunks
 
 __all__ = ["METHODS", "count_rollovers"]
 
@@ -40,7 +40,7 @@ def count_rollovers(
     return_counts: bool,
     out: torch.Tensor,
 ) -> None:
-    """Run Eqs. 6-7 (or the robust rule) tile by tile into ``out``, validating each tile's moduli on the way.
+    """Run Eqs. 6-7 (or the robust rule) chunk by chunk into ``out``, validating each chunk's moduli on the way.
 
     Args:
         frames: (B, M, n) moduli, exposures sorted ascending.
@@ -55,15 +55,15 @@ def count_rollovers(
     period = float(2**bits)
     inv_p = 1.0 / period
     on_cpu = frames.device.type == "cpu"
-    tiles = column_tiles(n, b) if on_cpu else [slice(0, n)]  # float64 work stays in cache on the CPU
-    tile = tiles[0].stop
+    chunks = column_chunks(n, b) if on_cpu else [slice(0, n)]  # float64 work stays in cache on the CPU
+    chunk = chunks[0].stop
     work = torch.float64 if (on_cpu or frames.device.type == "cuda") else frames.dtype
     scale = (ratios * inv_p).to(work).unsqueeze(-1)  # (B, M-1, 1): r / P
     tau_max = tau[:, -1:].to(work)
-    counts = torch.empty((b, min(tile, n)), dtype=work, device=frames.device)
-    scratch = torch.empty((b, min(tile, n)), dtype=frames.dtype, device=frames.device)
+    counts = torch.empty((b, min(chunk, n)), dtype=work, device=frames.device)
+    scratch = torch.empty((b, min(chunk, n)), dtype=frames.dtype, device=frames.device)
     bad = False
-    for cols in tiles:
+    for cols in chunks:
         width = cols.stop - cols.start
         acc, tmp = counts[:, :width], scratch[:, :width]
         for i in range(m):

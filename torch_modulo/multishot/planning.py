@@ -194,16 +194,16 @@ def plan_exposures(
             f"stops={stops:g} from base={base:g} needs exposures beyond float64's range (about 2^1023); "
             "express exposures in a larger unit (a smaller base) or plan fewer stops"
         )
-    if noise is not None:
-        noise = as_noise_model(noise)
+    model = as_noise_model(noise)
+    if model is not None:
         sigmas = check_real(sigmas, "sigmas", positive=True)
         tolerance = check_real(tolerance, "tolerance", 1.0)
         min_ratio = check_real(min_ratio, "min_ratio")
         if not 1 < min_ratio <= limit:
             raise ValueError(f"min_ratio must be in (1, max_ratio = {limit:g}]; got {min_ratio}")
-        if longest is not None and noise.dark_counts > 0:
-            base = _base_for_longest(stops, bits, longest, noise, sigmas)
-        plan = _noisy_plan(stops, bits, base, limit, noise, sigmas, tolerance, min_ratio)
+        if longest is not None and model.dark_counts > 0:
+            base = _base_for_longest(stops, bits, longest, model, sigmas)
+        plan = _noisy_plan(stops, bits, base, limit, model, sigmas, tolerance, min_ratio)
     else:
         plan = _noise_free_plan(stops, bits, base, limit)
     if longest is None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Sequence
+from typing import Literal, Protocol, cast, overload
 
 import torch
 from torch import nn
@@ -15,6 +16,7 @@ from torch_modulo._checks import (
     check_bits,
     check_choice,
     check_flag,
+    check_floating,
     check_modulus,
     check_real,
     validation_enabled,
@@ -37,10 +39,10 @@ def _warn_inexact_counts(out: torch.Tensor, tau: torch.Tensor, counts: bool) -> 
     top = out.amax(dim=1).double()  # per item; inf where the dtype overflowed
     if not counts:
         top = top * tau[:, -1].double()  # radiance times the item's longest exposure: its counts, at most
-    top = float(top.max())
-    if top > 2**limit:
+    peak = float(top.max())
+    if peak > 2**limit:
         warnings.warn(
-            f"counts reach {top:.0f}, beyond what {out.dtype} holds exactly ({2**limit}): they are rounded (or "
+            f"counts reach {peak:.0f}, beyond what {out.dtype} holds exactly ({2**limit}): they are rounded (or "
             "infinite past the dtype's range); use float64 moduli for exact counts",
             stacklevel=3,
         )
@@ -61,7 +63,7 @@ def _warn_unsafe(tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: Nois
 def _count_traced(stack: torch.Tensor, tau: torch.Tensor, bits: int, method: str, return_counts: bool) -> torch.Tensor:
     """The noise-free rules of :func:`~torch_modulo.multishot.counting.count_rollovers` in whole-tensor operations.
 
-    The path ``torch.compile`` traces: the same float64 arithmetic (so the same counts), without the CPU tiles or
+    The path ``torch.compile`` traces: the same float64 arithmetic (so the same counts), without the CPU chunks or
     data-dependent branches. With validation on, the moduli and ratios are still checked (breaking the graph).
 
     Args:
@@ -98,6 +100,48 @@ def _count_traced(stack: torch.Tensor, tau: torch.Tensor, bits: int, method: str
     return acc.to(stack.dtype).view(b, *stack.shape[2:])
 
 
+@overload
+def unwrap_multi(
+    moduli: torch.Tensor,
+    exposures: Sequence[float] | torch.Tensor,
+    bits: int = ...,
+    method: str = ...,
+    *,
+    noise: NoiseModel | str | None = ...,
+    sigmas: float = ...,
+    return_counts: bool = ...,
+    return_variance: Literal[False] = ...,
+) -> torch.Tensor: ...
+
+
+@overload
+def unwrap_multi(
+    moduli: torch.Tensor,
+    exposures: Sequence[float] | torch.Tensor,
+    bits: int = ...,
+    method: str = ...,
+    *,
+    noise: NoiseModel | str | None = ...,
+    sigmas: float = ...,
+    return_counts: bool = ...,
+    return_variance: Literal[True],
+) -> tuple[torch.Tensor, torch.Tensor]: ...
+
+
+@overload
+def unwrap_multi(
+    moduli: torch.Tensor,
+    exposures: Sequence[float] | torch.Tensor,
+    bits: int = ...,
+    method: str = ...,
+    *,
+    noise: NoiseModel | str | None = ...,
+    sigmas: float = ...,
+    return_counts: bool = ...,
+    return_variance: bool,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]: ...
+
+
 def unwrap_multi(
     moduli: torch.Tensor,
     exposures: Sequence[float] | torch.Tensor,
@@ -122,7 +166,7 @@ def unwrap_multi(
     that leave dark pixels undecodable draw a warning that says what to use instead.
 
     The noise-free work is vectorised over batch, exposures' pixels and channels; on the CPU it runs over cache-sized
-    tiles of pixels with float64 arithmetic in place, so the decisions are exact for counts up to ``2**53``. The
+    chunks of pixels with float64 arithmetic in place, so the decisions are exact for counts up to ``2**53``. The
     result carries no gradient (rollover counts are discrete). Under ``torch.compile`` the noise-free rules run as
     whole-tensor operations with the same arithmetic, in one graph when :func:`torch_modulo.validation` is off;
     the noise-aware decoder runs, but with graph breaks.
@@ -212,7 +256,17 @@ def unwrap_multi(
     return (radiance, variance) if return_variance else radiance
 
 
-def _split_stack(stack: object) -> tuple[torch.Tensor, torch.Tensor]:
+class _FrameStackLike(Protocol):
+    """What :class:`MultiExposureUnwrap` reads of a :class:`~torch_modulo.sensors.FrameStack` (or a look-alike)."""
+
+    @property
+    def moduli(self) -> torch.Tensor: ...
+
+    @property
+    def exposures(self) -> Sequence[float] | torch.Tensor: ...
+
+
+def _split_stack(stack: object) -> tuple[torch.Tensor, Sequence[float] | torch.Tensor]:
     """Moduli and exposures from an ExposureStack, a (moduli, exposures) pair or a FrameStack-like object."""
     if isinstance(stack, tuple) and len(stack) == 2:
         return stack[0], stack[1]
@@ -220,7 +274,8 @@ def _split_stack(stack: object) -> tuple[torch.Tensor, torch.Tensor]:
         kind = getattr(stack, "kind", "modulo")
         if kind != "modulo":
             raise ValueError(f"MultiExposureUnwrap decodes modulo frames; got a stack of kind={kind!r}")
-        return stack.moduli, stack.exposures  # type: ignore[attr-defined]
+        frames = cast(_FrameStackLike, stack)  # it has both attributes
+        return frames.moduli, frames.exposures
     raise TypeError(
         "MultiExposureUnwrap needs the exposures: call it with (moduli, exposures), or with the ExposureStack that "
         f"MultiExposureCapture returns or a FrameStack; got {type(stack).__name__} alone"
@@ -276,16 +331,18 @@ class MultiExposureUnwrap(nn.Module):
 
     def forward(
         self,
-        moduli: torch.Tensor | tuple[torch.Tensor, torch.Tensor],
+        moduli: torch.Tensor | tuple[torch.Tensor, torch.Tensor] | _FrameStackLike,
         exposures: Sequence[float] | torch.Tensor | None = None,
     ) -> torch.Tensor:
         if exposures is None:
             bits = getattr(moduli, "bits", self.bits)  # a FrameStack knows its bit depth
             if bits != self.bits:
                 raise ValueError(f"the stack holds bits={bits} frames but this layer decodes bits={self.bits}")
-            moduli, exposures = _split_stack(moduli)
+            frames, exposures = _split_stack(moduli)
+        else:
+            frames = check_floating(moduli, "moduli")
         return unwrap_multi(
-            moduli,
+            frames,
             exposures,
             self.bits,
             self.method,

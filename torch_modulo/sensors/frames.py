@@ -1,8 +1,22 @@
 """FrameStack: what every sensor adapter hands downstream, whether the frames were simulated or read from disk.
 
 Data flows one way: a sensor (simulated or file-backed) makes a :class:`FrameStack`, and the unwrapping functions
-take its fields (``tm.unwrap_multi(stack.moduli, stack.exposures, stack.bits)``). The stack has no unwrapping
+take its fields (``tm.unwrap_multi(stack.frames, stack.exposures, stack.bits)``). The stack has no unwrapping
 methods of its own.
+
+A stack of exposures takes one of three forms, one per level of the API:
+
+- the functions take and return plain tensors: :func:`~torch_modulo.capture_stack` returns the (B, M, C, H, W)
+  modulus images, and :func:`~torch_modulo.unwrap_multi` takes them with the exposures and the bit depth;
+- the layers pass one :class:`~torch_modulo.ExposureStack`, a named tuple ``(moduli, exposures)``, so that
+  ``nn.Sequential(MultiExposureCapture(...), MultiExposureUnwrap(...))`` chains;
+- the sensors return a :class:`FrameStack`: the frames and exposures together with what a file of them records
+  (bit depth, kind, colour filter array, metadata), validated on construction.
+
+From one to another: ``FrameStack(*exposure_stack, bits=N)`` (or ``FrameStack(moduli, exposures, bits=N)`` with
+the function's tensor) gives the sensors' form, :meth:`FrameStack.to_exposure_stack` gives the layers' form of a
+modulo stack, and :class:`~torch_modulo.MultiExposureUnwrap` takes an :class:`~torch_modulo.ExposureStack` or a
+:class:`FrameStack` as it is.
 """
 
 from __future__ import annotations
@@ -16,6 +30,7 @@ from typing import Any
 import torch
 
 from torch_modulo._checks import check_bits, check_choice, check_floating, check_modulus, exposure_tensor
+from torch_modulo.capture import ExposureStack
 from torch_modulo.cfa import check_cfa
 
 __all__ = ["KINDS", "FrameStack"]
@@ -27,10 +42,12 @@ KINDS = ("modulo", "intensity")
 class FrameStack:
     """Frames of one or more scenes, each taken at several exposures, with the sensor's bit depth.
 
-    Validated on construction: ``moduli`` must be a floating tensor of integers in ``[0, 2**bits)``, the exposures
+    What sensors return (see the module's notes for the tensor and :class:`~torch_modulo.ExposureStack` forms).
+    Validated on construction: the frames must be a floating tensor of integers in ``[0, 2**bits)``, the exposures
     positive and finite with one per frame. The tensors are stored as given (no copy); a (M, C, H, W) stack is
     stored as (1, M, C, H, W). Exposures are kept in float64 (float32 on MPS), so values read from metadata keep
-    every digit.
+    every digit. The frames are :attr:`frames` whatever the kind; :attr:`moduli` is the same tensor under the
+    name that suits a modulo stack.
 
     Args:
         moduli: (B, M, C, H, W) frames (or (M, C, H, W) for one scene); the modulus images of a modulo sensor, or
@@ -56,13 +73,17 @@ class FrameStack:
         >>> taus = [1.0, 8.0]
         >>> stack = FrameStack(torch.stack([capture_modulo(radiance, t, bits=8) for t in taus], 1), taus, bits=8)
         >>> stack
-        FrameStack(moduli=(1, 2, 1, 1, 2) float32 on cpu, exposures=[1.0, 8.0], bits=8, kind='modulo')
-        >>> stack.moduli[0, :, 0, 0]
+        FrameStack(frames=(1, 2, 1, 1, 2) float32 on cpu, exposures=[1.0, 8.0], bits=8, kind='modulo')
+        >>> stack.frames[0, :, 0, 0]
         tensor([[ 3., 40.],
                 [24., 64.]])
+        >>> stack.moduli is stack.frames
+        True
+        >>> stack.to_exposure_stack().exposures
+        tensor([1., 8.], dtype=torch.float64)
     """
 
-    __slots__ = ("_bits", "_exposures", "_kind", "_metadata", "_moduli")
+    __slots__ = ("_bits", "_exposures", "_frames", "_kind", "_metadata")
 
     def __init__(
         self,
@@ -101,7 +122,7 @@ class FrameStack:
         cfa = _check_stack_cfa(cfa, metadata.get("cfa"), moduli.shape)
         if cfa is not None:
             metadata["cfa"] = cfa
-        self._moduli = moduli
+        self._frames = moduli
         self._exposures = tau
         self._bits = bits
         self._metadata = metadata
@@ -110,14 +131,15 @@ class FrameStack:
     # ------------------------------------------------------------------------------------------ fields
 
     @property
-    def moduli(self) -> torch.Tensor:
-        """The frames, (B, M, C, H, W)."""
-        return self._moduli
+    def frames(self) -> torch.Tensor:
+        """The frames, (B, M, C, H, W): modulus images for ``kind="modulo"``, clipped counts for ``"intensity"``."""
+        return self._frames
 
     @property
-    def frames(self) -> torch.Tensor:
-        """Alias of :attr:`moduli` that reads better for ``kind="intensity"`` stacks."""
-        return self._moduli
+    def moduli(self) -> torch.Tensor:
+        """The same tensor as :attr:`frames`, under the name that suits a modulo stack; use :attr:`frames` for
+        ``kind="intensity"`` stacks (their frames are not moduli) and in code that takes either kind."""
+        return self._frames
 
     @property
     def exposures(self) -> torch.Tensor:
@@ -146,36 +168,56 @@ class FrameStack:
 
     @property
     def batch_size(self) -> int:
-        return int(self._moduli.shape[0])
+        return int(self._frames.shape[0])
 
     @property
     def num_exposures(self) -> int:
-        return int(self._moduli.shape[1])
+        return int(self._frames.shape[1])
 
     @property
     def shape(self) -> torch.Size:
-        return self._moduli.shape
+        return self._frames.shape
 
     @property
     def device(self) -> torch.device:
-        return self._moduli.device
+        return self._frames.device
 
     @property
     def dtype(self) -> torch.dtype:
-        return self._moduli.dtype
+        return self._frames.dtype
 
     def exposure_matrix(self) -> torch.Tensor:
         """Exposures as (B, M), whichever shape they were given in."""
         return self._exposures.expand(self.batch_size, self.num_exposures)
 
+    def to_exposure_stack(self) -> ExposureStack:
+        """The frames and exposures as the :class:`~torch_modulo.ExposureStack` the layers pass (no copy).
+
+        The bit depth, kind, colour filter array and metadata stay behind: the layer that decodes the stack is
+        built with its bit depth (``MultiExposureUnwrap(bits=stack.bits)``).
+
+        Returns:
+            ``ExposureStack(frames, exposures)``: (B, M, C, H, W) moduli and (M,) or (B, M) exposures.
+
+        Raises:
+            ValueError: the stack is of ``kind="intensity"``; an :class:`~torch_modulo.ExposureStack` holds
+                modulus images (merge a conventional sensor's frames with :func:`~torch_modulo.merge_intensity`).
+        """
+        if self._kind != "modulo":
+            raise ValueError(
+                f"an ExposureStack holds modulus images; this stack is of kind={self._kind!r} (merge its frames "
+                "with merge_intensity(stack.frames, stack.exposures, stack.bits))"
+            )
+        return ExposureStack(self._frames, self._exposures)
+
     # -------------------------------------------------------------------------------------- conversion
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> FrameStack:
         """A stack on another device and/or with another floating dtype for the frames (validated again)."""
-        moduli = self._moduli.to(device=device, dtype=dtype)
+        frames = self._frames.to(device=device, dtype=dtype)
         return FrameStack(
-            moduli,
-            self._exposures.to(device=moduli.device, dtype=_exposure_dtype(moduli.device)),
+            frames,
+            self._exposures.to(device=frames.device, dtype=_exposure_dtype(frames.device)),
             self._bits,
             self._metadata,
             kind=self._kind,
@@ -187,23 +229,24 @@ class FrameStack:
     def __getitem__(self, index: int | slice) -> FrameStack:
         """Batch items: ``stack[i]`` is a stack of one scene (B = 1), ``stack[i:j]`` several (``i``: any integer,
         numpy's and 0-d tensors' included; slices step forward)."""
-        if not isinstance(index, slice):
-            given = index
+        if isinstance(index, slice):
+            if index.step is not None and operator.index(index.step) <= 0:
+                raise ValueError(f"FrameStack slices must step forward (step >= 1); got {index}")
+            items = index
+        else:
+            position: int | None
             try:  # numpy integers and 0-d integer tensors too (what samplers and permutations give)
-                index = None if isinstance(given, bool) else operator.index(given)
+                position = None if isinstance(index, bool) else operator.index(index)
             except TypeError:
-                index = None
-            if index is None:
-                raise TypeError(f"FrameStack index must be an int or a slice; got {type(given).__name__}")
-        elif index.step is not None and operator.index(index.step) <= 0:
-            raise ValueError(f"FrameStack slices must step forward (step >= 1); got {index}")
-        if isinstance(index, int):
-            if not -self.batch_size <= index < self.batch_size:
-                raise IndexError(f"batch index {index} out of range for a FrameStack of {self.batch_size} items")
-            index = slice(index % self.batch_size, index % self.batch_size + 1)
-        moduli = self._moduli[index]
-        tau = self._exposures if self._exposures.dim() == 1 else self._exposures[index]
-        return FrameStack(moduli, tau, self._bits, self._metadata, kind=self._kind)
+                position = None
+            if position is None:
+                raise TypeError(f"FrameStack index must be an int or a slice; got {type(index).__name__}")
+            if not -self.batch_size <= position < self.batch_size:
+                raise IndexError(f"batch index {position} out of range for a FrameStack of {self.batch_size} items")
+            items = slice(position % self.batch_size, position % self.batch_size + 1)
+        frames = self._frames[items]
+        tau = self._exposures if self._exposures.dim() == 1 else self._exposures[items]
+        return FrameStack(frames, tau, self._bits, self._metadata, kind=self._kind)
 
     # --------------------------------------------------------------------------------------- comparison
 
@@ -214,10 +257,10 @@ class FrameStack:
         return (
             self._bits == other._bits
             and self._kind == other._kind
-            and self._moduli.dtype == other._moduli.dtype
-            and self._moduli.shape == other._moduli.shape
+            and self._frames.dtype == other._frames.dtype
+            and self._frames.shape == other._frames.shape
             and self._exposures.shape == other._exposures.shape
-            and bool(torch.equal(self._moduli.cpu(), other._moduli.cpu()))
+            and bool(torch.equal(self._frames.cpu(), other._frames.cpu()))
             and bool(torch.equal(self._exposures.cpu().double(), other._exposures.cpu().double()))
             and _metadata_equal(self._metadata, other._metadata)
         )
@@ -225,12 +268,12 @@ class FrameStack:
     __hash__ = None  # type: ignore[assignment]
 
     def __repr__(self) -> str:
-        shape = tuple(self._moduli.shape)
+        shape = tuple(self._frames.shape)
         taus = self._exposures.tolist() if self._exposures.numel() <= 8 else f"{tuple(self._exposures.shape)}"
-        dtype = str(self._moduli.dtype).replace("torch.", "")
+        dtype = str(self._frames.dtype).replace("torch.", "")
         cfa = f", cfa={self.cfa!r}" if self.cfa is not None else ""
         return (
-            f"FrameStack(moduli={shape} {dtype} on {self._moduli.device}, exposures={taus}, bits={self._bits}, "
+            f"FrameStack(frames={shape} {dtype} on {self._frames.device}, exposures={taus}, bits={self._bits}, "
             f"kind={self._kind!r}{cfa})"
         )
 

@@ -91,7 +91,7 @@ def fixed_pattern_gain(
     return gain.clamp_(min=0.0).to(device=device, dtype=dtype)
 
 
-def _stack_exposures(exposures: Sequence[float] | torch.Tensor, radiance: torch.Tensor, b: int) -> torch.Tensor:
+def _stack_exposures(exposures: float | Sequence[float] | torch.Tensor, radiance: torch.Tensor, b: int) -> torch.Tensor:
     """Exposures as a (1, M) or (B, M) tensor on the radiance's device and dtype."""
     tau = exposure_tensor(exposures, radiance, "exposures")
     if tau.dim() == 0:
@@ -342,7 +342,8 @@ class SimulatedModuloSensor(_SimulatedSensor):
 
     Shape:
         - Input: radiance (B, C, H, W) or (C, H, W) (C = 3 with ``cfa``); exposures (M,) or (B, M).
-        - Output: :class:`FrameStack` with moduli (B, M, C, H, W) (C = 1 with ``cfa``).
+        - Output: :class:`FrameStack` of modulus images, (B, M, C, H, W) (C = 1 with ``cfa``); ``stack.moduli``
+          and ``stack.frames`` name the same tensor.
 
     Example:
         >>> sensor = SimulatedModuloSensor(bits=8, noise=None)

@@ -45,8 +45,8 @@ Gradients:
 
 Speed:
     On the CPU without autograd the global operators read the batch once for their statistics (the histogram
-    operator reads it through adaptive average pooling), then map it tile by tile through cache-sized scratch
-    buffers with in-place arithmetic and one write of the output; each operation on a tile runs on PyTorch's
+    operator reads it through adaptive average pooling), then map it chunk by chunk through cache-sized scratch
+    buffers with in-place arithmetic and one write of the output; each operation on a chunk runs on PyTorch's
     intra-op threads. With autograd, or on other devices, the same formulas run as ordinary whole-tensor
     operations. CLAHE always runs through Kornia.
 

@@ -1,8 +1,8 @@
-"""What every tone-mapping operator shares: input validation, luminance, the sRGB encoding and the tiled CPU path.
+"""What every tone-mapping operator shares: input validation, luminance, the sRGB encoding and the chunked CPU path.
 
-The tiled CPU path (no autograd, CPU tensor) reads the batch once for its statistics, then maps it tile by tile
-through cache-sized scratch buffers with in-place arithmetic and one write of the output; each operation on a
-tile runs on PyTorch's intra-op threads (see :mod:`torch_modulo._tiling`). Under ``torch.compile`` the operators
+The chunked CPU path (no autograd, CPU tensor) reads the batch once for its statistics, then maps it chunk by
+chunk through cache-sized scratch buffers with in-place arithmetic and one write of the output; each operation on
+a chunk runs on PyTorch's intra-op threads (see :mod:`torch_modulo._chunks`). Under ``torch.compile`` the operators
 take their whole-tensor path instead, which the compiler fuses.
 """
 
@@ -15,15 +15,15 @@ import kornia
 import torch
 
 from torch_modulo._checks import check_floating, check_image_shape, check_nonnegative, check_real, validation_enabled
-from torch_modulo._tiling import CPU_TILE, column_tiles, tile_on_cpu
+from torch_modulo._chunks import CPU_CHUNK, chunk_on_cpu, column_chunks
 
 __all__ = ["REC709_LUMA", "luminance"]
 
 #: Luminance weights of linear Rec.709 (sRGB) primaries: ``Y = 0.2126 R + 0.7152 G + 0.0722 B``.
 REC709_LUMA: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
 
-#: Elements per tile: these kernels keep several (B, n) buffers per tile, so they take half the shared tile size.
-TILE = CPU_TILE // 2
+#: Elements per chunk: these kernels keep several (B, n) buffers per chunk, so they take half the shared chunk size.
+CHUNK = CPU_CHUNK // 2
 
 
 def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
@@ -31,11 +31,9 @@ def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
 
     The value check (finite, non-negative) is skipped with :func:`torch_modulo.validation` off.
     """
-    check_floating(hdr, name)
-    assert isinstance(hdr, torch.Tensor)
-    check_image_shape(hdr, name, 2, 4)
-    shape = hdr.shape
-    x = hdr
+    x = check_floating(hdr, name)
+    check_image_shape(x, name, 2, 4)
+    shape = x.shape
     if x.dim() == 2:
         x = x[None, None]
     elif x.dim() == 3:
@@ -71,14 +69,14 @@ def needs_grad(x: torch.Tensor) -> bool:
     return torch.is_grad_enabled() and x.requires_grad
 
 
-def tiled(x: torch.Tensor) -> bool:
+def chunked(x: torch.Tensor) -> bool:
     """Whether to take the in-place CPU path (no autograd, CPU tensor, not traced by ``torch.compile``)."""
-    return tile_on_cpu(x) and not torch.compiler.is_compiling()
+    return chunk_on_cpu(x) and not torch.compiler.is_compiling()
 
 
-def pixel_tiles(n: int, rows: int) -> list[slice]:
-    """Slices of the ``n`` pixels of a (rows, n) view, each tile holding about :data:`TILE` elements."""
-    return column_tiles(n, rows, tile=TILE, min_width=64)
+def pixel_chunks(n: int, rows: int) -> list[slice]:
+    """Slices of the ``n`` pixels of a (rows, n) view, each chunk holding about :data:`CHUNK` elements."""
+    return column_chunks(n, rows, chunk=CHUNK, min_width=64)
 
 
 def encode(out: torch.Tensor, srgb: bool) -> torch.Tensor:
@@ -111,64 +109,64 @@ def luminance(image: torch.Tensor) -> torch.Tensor:
     return r * REC709_LUMA[0] + g * REC709_LUMA[1] + b * REC709_LUMA[2]
 
 
-def _luminance_tile(tile: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """Luminance of a (B, C, n) tile written into the (B, n) buffer ``out``."""
-    if tile.shape[1] == 1:
-        return out.copy_(tile[:, 0])
-    torch.mul(tile[:, 0], REC709_LUMA[0], out=out)
-    out.add_(tile[:, 1], alpha=REC709_LUMA[1])
-    return out.add_(tile[:, 2], alpha=REC709_LUMA[2])
+def _luminance_chunk(chunk: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """Luminance of a (B, C, n) chunk written into the (B, n) buffer ``out``."""
+    if chunk.shape[1] == 1:
+        return out.copy_(chunk[:, 0])
+    torch.mul(chunk[:, 0], REC709_LUMA[0], out=out)
+    out.add_(chunk[:, 1], alpha=REC709_LUMA[1])
+    return out.add_(chunk[:, 2], alpha=REC709_LUMA[2])
 
 
-#: A tile kernel turns luminance (B, n) into the factor that scales R, G, B, using scratch buffers (B, n).
-TileKernel = Callable[[torch.Tensor, list[torch.Tensor]], torch.Tensor]
+#: A chunk kernel turns luminance (B, n) into the factor that scales R, G, B, using scratch buffers (B, n).
+ChunkKernel = Callable[[torch.Tensor, list[torch.Tensor]], torch.Tensor]
 
 
-def map_tiled(x: torch.Tensor, kernel: TileKernel, n_scratch: int, index_scratch: bool = False) -> torch.Tensor:
-    """CPU path: ``out = clip(x * kernel(Y), 0, 1)`` tile by tile through cache-sized scratch buffers."""
+def map_chunked(x: torch.Tensor, kernel: ChunkKernel, n_scratch: int, index_scratch: bool = False) -> torch.Tensor:
+    """CPU path: ``out = clip(x * kernel(Y), 0, 1)`` chunk by chunk through cache-sized scratch buffers."""
     b, c, h, w = x.shape
     n = h * w
     x3 = x.reshape(b, c, n)
     out = torch.empty((b, c, h, w), dtype=x.dtype, device=x.device)
     o3 = out.view(b, c, n)
-    tiles = pixel_tiles(n, b)
-    step = tiles[0].stop if tiles else 0
+    chunks = pixel_chunks(n, b)
+    step = chunks[0].stop if chunks else 0
     y = torch.empty((b, step), dtype=x.dtype, device=x.device)
     scratch = [torch.empty((b, step), dtype=x.dtype, device=x.device) for _ in range(n_scratch)]
     if index_scratch:
         scratch.append(torch.empty((b, step), dtype=torch.long, device=x.device))
-    for cols in tiles:
+    for cols in chunks:
         m = cols.stop - cols.start
-        tile = x3[:, :, cols]
-        ratio = kernel(_luminance_tile(tile, y[:, :m]), [buf[:, :m] for buf in scratch])
+        part = x3[:, :, cols]
+        ratio = kernel(_luminance_chunk(part, y[:, :m]), [buf[:, :m] for buf in scratch])
         for ch in range(c):
-            torch.mul(tile[:, ch], ratio, out=o3[:, ch, cols]).clamp_(0.0, 1.0)
+            torch.mul(part[:, ch], ratio, out=o3[:, ch, cols]).clamp_(0.0, 1.0)
     return out
 
 
-def luminance_stats_tiled(x: torch.Tensor, log_offset: float | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+def luminance_stats_chunked(x: torch.Tensor, log_offset: float | None) -> tuple[torch.Tensor, torch.Tensor | None]:
     """One read of the batch: per-image max luminance and, if ``log_offset`` is given, sum of log(Y + offset).
 
-    Partial results are kept per tile and added in tile order, so the result does not depend on threading.
+    Partial results are kept per chunk and added in chunk order, so the result does not depend on threading.
     """
     b, c, h, w = x.shape
     n = h * w
     x3 = x.reshape(b, c, n)
-    tiles = pixel_tiles(n, b)
-    step = tiles[0].stop if tiles else 0
-    maxima = torch.zeros((len(tiles), b), dtype=x.dtype, device=x.device)
-    sums = None if log_offset is None else torch.zeros((len(tiles), b), dtype=torch.float64, device=x.device)
+    chunks = pixel_chunks(n, b)
+    step = chunks[0].stop if chunks else 0
+    maxima = torch.zeros((len(chunks), b), dtype=x.dtype, device=x.device)
+    sums = None if log_offset is None else torch.zeros((len(chunks), b), dtype=torch.float64, device=x.device)
     y = torch.empty((b, step), dtype=x.dtype, device=x.device)
-    for i, cols in enumerate(tiles):
-        yt = _luminance_tile(x3[:, :, cols], y[:, : cols.stop - cols.start])
+    for i, cols in enumerate(chunks):
+        yt = _luminance_chunk(x3[:, :, cols], y[:, : cols.stop - cols.start])
         torch.amax(yt, dim=1, out=maxima[i])
-        if sums is not None:
+        if sums is not None and log_offset is not None:
             torch.sum(yt.add_(log_offset).log_(), dim=1, dtype=torch.float64, out=sums[i])
     return maxima.amax(dim=0), None if sums is None else sums.sum(dim=0)
 
 
 def col(v: torch.Tensor) -> torch.Tensor:
-    """(B,) -> (B, 1) for broadcasting against (B, n) tiles."""
+    """(B,) -> (B, 1) for broadcasting against (B, n) chunks."""
     return v.reshape(-1, 1)
 
 

@@ -9,13 +9,13 @@ from torch_modulo._checks import check_flag, check_real
 from torch_modulo.tonemap._common import (
     as_batch,
     check_exposure_stops,
+    chunked,
     encode,
     img,
     luminance,
     needs_grad,
-    pixel_tiles,
+    pixel_chunks,
     restore,
-    tiled,
     widened,
 )
 
@@ -90,8 +90,8 @@ def tonemap_gamma(
         ref = torch.where(ref > 0, ref, torch.where(brightest > 0, brightest, torch.ones_like(brightest)))
         scale = (scale / ref).clamp(max=top)
     inv_gamma = 1.0 / gamma
-    if tiled(x):
-        out = _gamma_tiled(x, scale, inv_gamma)
+    if chunked(x):
+        out = _gamma_chunked(x, scale, inv_gamma)
     else:
         out = (x * img(scale)).clamp(0.0, 1.0)
         if inv_gamma != 1.0:
@@ -100,15 +100,15 @@ def tonemap_gamma(
     return restore(encode(out, srgb).to(given.dtype), shape)
 
 
-def _gamma_tiled(x: torch.Tensor, scale: torch.Tensor, inv_gamma: float) -> torch.Tensor:
-    """CPU path of :func:`tonemap_gamma`: ``clip(x * scale, 0, 1) ** inv_gamma`` tile by tile, in place."""
+def _gamma_chunked(x: torch.Tensor, scale: torch.Tensor, inv_gamma: float) -> torch.Tensor:
+    """CPU path of :func:`tonemap_gamma`: ``clip(x * scale, 0, 1) ** inv_gamma`` chunk by chunk, in place."""
     b, c, h, w = x.shape
     n = h * w
     x3 = x.reshape(b, c, n)
     out = torch.empty_like(x, memory_format=torch.contiguous_format)
     o3 = out.view(b, c, n)
     s3 = scale.reshape(-1, 1, 1)
-    for cols in pixel_tiles(n, b * c):
+    for cols in pixel_chunks(n, b * c):
         o = o3[:, :, cols]
         torch.mul(x3[:, :, cols], s3, out=o).clamp_(0.0, 1.0)
         if inv_gamma != 1.0:

@@ -11,13 +11,13 @@ from torch import nn
 from torch_modulo._checks import check_flag, check_int, check_real
 from torch_modulo.tonemap._common import (
     as_batch,
+    chunked,
     col,
     encode,
     luminance,
-    map_tiled,
+    map_chunked,
     needs_grad,
     restore,
-    tiled,
     widened,
 )
 
@@ -238,7 +238,7 @@ def tonemap_histogram(
     span = math.log(ld_max) - math.log(ld_min)
     c = ld_min / (ld_max - ld_min)  # (Ld - Ld_min) / (Ld_max - Ld_min) = c * expm1(span * P)
     tiny = torch.finfo(src.dtype).tiny
-    if tiled(src):
+    if chunked(src):
         # span * P = span * (cumf[i] + (u - i) slope[i]) = offset[i] + u * steep[i]: one gather fewer per pixel.
         steep = span * slope
         offset = span * cumf - torch.arange(bins + 1, dtype=src.dtype, device=src.device) * steep
@@ -252,7 +252,7 @@ def tonemap_histogram(
             u.mul_(torch.gather(steep, 1, idx, out=tmp)).add_(torch.gather(offset, 1, idx, out=tmp))
             return u.expm1_().mul_(c).div_(y)  # in this order: expm1(span P) / y may overflow
 
-        out = map_tiled(src, kernel, 2, index_scratch=True)
+        out = map_chunked(src, kernel, 2, index_scratch=True)
     else:
         y = luminance(src).reshape(b, -1).clamp_min(tiny)
         u = ((torch.log(y) - lo[:, None]) * scale[:, None]).clamp(0.0, float(bins))

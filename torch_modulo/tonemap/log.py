@@ -11,14 +11,14 @@ from torch_modulo._checks import check_flag, check_real
 from torch_modulo.tonemap._common import (
     as_batch,
     check_exposure_stops,
+    chunked,
     col,
     encode,
     img,
     luminance,
-    luminance_stats_tiled,
-    map_tiled,
+    luminance_stats_chunked,
+    map_chunked,
     restore,
-    tiled,
 )
 
 __all__ = ["LogToneMap", "tonemap_log"]
@@ -144,8 +144,8 @@ def tonemap_log(
         parts = [tonemap_log(x[i : i + 1], q, k, exposure, srgb=srgb) for i in range(x.shape[0])]
         return restore(torch.cat(parts), shape)
 
-    if tiled(x):
-        y_max, _ = luminance_stats_tiled(x, None)
+    if chunked(x):
+        y_max, _ = luminance_stats_chunked(x, None)
         fit = fitting(y_max)
         if any(fit) and not all(fit):
             return one_by_one()
@@ -160,7 +160,7 @@ def tonemap_log(
                 ld = torch.mul(y, qs, out=buf[0]).log1p_()
                 return ld.div_(y).mul_(inv_col)
 
-            return restore(encode(map_tiled(x, kernel, 1), srgb), shape)
+            return restore(encode(map_chunked(x, kernel, 1), srgb), shape)
     if x.dtype == torch.float64 or x.device.type == "mps":
         out = _log_map(x, qs, ks)
     elif torch.compiler.is_compiling():

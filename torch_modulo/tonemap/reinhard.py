@@ -10,14 +10,14 @@ from torch import nn
 from torch_modulo._checks import check_flag, check_real
 from torch_modulo.tonemap._common import (
     as_batch,
+    chunked,
     col,
     encode,
     img,
     luminance,
-    luminance_stats_tiled,
-    map_tiled,
+    luminance_stats_chunked,
+    map_chunked,
     restore,
-    tiled,
     widened,
 )
 
@@ -78,8 +78,8 @@ def tonemap_reinhard(
     h, w = src.shape[-2:]
     # Ld / Lw = s (1 + L / Lwhite²) / (1 + L) with L = s Lw, s = a / L̄w, written (s + (Lw c) c) / (1 + s Lw) with
     # c = s / Lwhite: neither s² nor 1 / Lwhite² (either may overflow for a very dim or bright image) is formed.
-    if tiled(src):
-        y_max, log_sum = luminance_stats_tiled(src, delta)
+    if chunked(src):
+        y_max, log_sum = luminance_stats_chunked(src, delta)
         assert log_sum is not None
         scale = key / torch.exp(log_sum / (h * w))  # float64, like the sum
         c = scale * _inverse_white(white, y_max.double() * scale)  # 1 / y_max for the default white
@@ -89,7 +89,7 @@ def tonemap_reinhard(
             num = torch.mul(y, c_col, out=buf[0]).mul_(c_col).add_(s_col)
             return num.div_(y.mul_(s_col).add_(1.0))
 
-        out = map_tiled(src, kernel, 1)
+        out = map_chunked(src, kernel, 1)
     else:
         y = luminance(src)
         log_avg = torch.exp(torch.log(y + delta).mean(dim=(1, 2, 3)))
