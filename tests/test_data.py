@@ -13,7 +13,7 @@ from torch.utils.data import DataLoader
 from torch_modulo import capture_modulo
 from torch_modulo.data import HDRFolder, RandomModuloCapture
 from torch_modulo.io import write_image
-from torch_modulo.pipeline import load_radiance
+from torch_modulo.radiance import load_radiance
 from torch_modulo.sensors import NoiseModel
 
 

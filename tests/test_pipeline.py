@@ -1,25 +1,24 @@
-"""Tests of torch_modulo/pipeline.py: load_radiance (one policy for values a radiance map cannot hold), the tasks
-of the folder commands, what a task weighs, and the jobs as Python functions."""
+"""Tests of torch_modulo/pipeline.py: the jobs of the folder commands as Python functions (simulate, unwrap,
+tonemap), the per-scene seed, and how simulate scales a scene and plans its exposures."""
 
 from __future__ import annotations
 
 import math
 import pickle
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import torch
 
 from torch_modulo import pipeline
-from torch_modulo.batch import Task
+from torch_modulo._task import Task
 from torch_modulo.io import read_image, write_image
 from torch_modulo.multishot import plan_exposures
 from torch_modulo.noise import NoiseModel
 from torch_modulo.pipeline import (
-    count_values,
     fit_scale,
-    folder_tasks,
-    load_radiance,
     plan_scene,
     scene_seed,
     simulate_job,
@@ -38,134 +37,15 @@ def _write(path: Path, image: torch.Tensor) -> Path:
     return path
 
 
-class TestLoadRadiance:
-    def test_smoke(self, tmp_path: Path) -> None:
-        image = torch.rand(3, 5, 7) * 100
-        loaded = load_radiance(_write(tmp_path / "x.exr", image))
-        assert loaded.shape == (3, 5, 7) and loaded.dtype == torch.float32
-        assert torch.equal(loaded, read_image(tmp_path / "x.exr"))
-        assert load_radiance(tmp_path / "x.exr", dtype=torch.float64).dtype == torch.float64
-
-    def test_nonfinite_values_are_replaced_by_default(self, tmp_path: Path) -> None:
-        image = torch.tensor([[[1.0, -2.0], [NAN, 5.0]], [[INF, 3.0], [-INF, 0.25]]])
-        loaded, counts = load_radiance(_write(tmp_path / "x.exr", image), channels=None, with_counts=True)
-        assert loaded.tolist() == [[[1.0, 0.0], [0.0, 5.0]], [[5.0, 3.0], [0.0, 0.25]]]
-        assert counts == {"nan": 1, "posinf": 1, "neginf": 1, "negative": 1}
-
-    def test_nonfinite_raise_names_the_file_and_the_counts(self, tmp_path: Path) -> None:
-        path = _write(tmp_path / "x.exr", torch.tensor([[[1.0, NAN], [INF, INF]]]))
-        with pytest.raises(ValueError) as info:
-            load_radiance(path, nonfinite="raise")
-        assert str(info.value).startswith(f"{path} holds 3 NaN or infinite values (1 NaN, 2 +Inf, 0 -Inf); ")
-        assert "nonfinite='replace'" in str(info.value)
-
-    @pytest.mark.parametrize("nonfinite", ["replace", "raise"])
-    def test_a_file_without_a_finite_value_is_refused(self, tmp_path: Path, nonfinite: str) -> None:
-        path = _write(tmp_path / "x.exr", torch.full((3, 2, 2), NAN))
-        with pytest.raises(ValueError, match=r"x\.exr holds no finite value \(12 NaN, 0 \+Inf, 0 -Inf\)"):
-            load_radiance(path, nonfinite=nonfinite)
-
-    def test_negatives_are_clamped_even_with_raise(self, tmp_path: Path) -> None:
-        path = _write(tmp_path / "x.exr", torch.tensor([[[-0.01, 2.0]]]))
-        assert load_radiance(path, nonfinite="raise").tolist() == [[[0.0, 2.0]]]
-
-    def test_a_nan_in_a_dropped_channel_does_not_count(self, tmp_path: Path) -> None:
-        rgba = torch.ones(4, 2, 2)
-        rgba[3, 0, 0] = NAN
-        path = _write(tmp_path / "x.exr", rgba)
-        assert torch.equal(load_radiance(path, nonfinite="raise"), torch.ones(3, 2, 2))
-        with pytest.raises(ValueError, match="1 NaN"):
-            load_radiance(path, channels=None, nonfinite="raise")
-
-    @pytest.mark.parametrize(
-        ("stored", "channels", "expected"),
-        [(1, "auto", 1), (2, "auto", 1), (3, "auto", 3), (4, "auto", 3), (9, "auto", 3)]
-        + [(1, 3, 3), (2, 3, 3), (4, 3, 3), (1, 1, 1), (2, 1, 1), (4, 1, 1), (2, None, 2), (4, None, 4)],
-    )
-    def test_channels(self, tmp_path: Path, stored: int, channels: int | str | None, expected: int) -> None:
-        image = torch.rand(stored, 3, 4) * 10
-        loaded = load_radiance(_write(tmp_path / "x.exr", image), channels=channels)
-        assert loaded.shape == (expected, 3, 4)
-        if channels == 3 and stored < 3:
-            assert torch.equal(loaded, image[:1].expand(3, -1, -1))
-        elif channels == 1 and stored >= 3:
-            luminance = 0.2126 * image[0] + 0.7152 * image[1] + 0.0722 * image[2]
-            torch.testing.assert_close(loaded[0], luminance)
-        else:
-            assert torch.equal(loaded, image[:expected])
-
-    def test_errors(self, tmp_path: Path) -> None:
-        path = _write(tmp_path / "x.exr", torch.ones(1, 2, 2))
-        with pytest.raises(ValueError, match="nonfinite must be one of 'raise', 'replace'; got 'zero'"):
-            load_radiance(path, nonfinite="zero")
-        with pytest.raises(ValueError, match="channels must be 1, 3, 'auto' or None; got 2"):
-            load_radiance(path, channels=2)
-        with pytest.raises(TypeError, match="with_counts must be .*; got 'no'"):
-            load_radiance(path, with_counts="no")  # type: ignore[arg-type]
-        with pytest.raises(FileNotFoundError, match="missing"):
-            load_radiance(tmp_path / "missing.exr")
-        (tmp_path / "broken.exr").write_bytes(b"not an image")
-        with pytest.raises(OSError, match=r"broken\.exr"):
-            load_radiance(tmp_path / "broken.exr")
-
-    def test_input_file_is_not_modified(self, tmp_path: Path) -> None:
-        path = _write(tmp_path / "x.exr", torch.tensor([[[NAN, -1.0, 2.0]]]))
-        before = path.read_bytes()
-        load_radiance(path)
-        assert path.read_bytes() == before
-
-
-class TestTasks:
-    @pytest.fixture
-    def folder(self, tmp_path: Path) -> Path:
-        for name in ("a.exr", "sub/b.hdr", "notes.txt", "m.png"):
-            _write(tmp_path / "in" / name, torch.ones(3, 4, 6)) if name != "notes.txt" else None
-        (tmp_path / "in" / "notes.txt").write_text("x")
-        (tmp_path / "in" / "stack").mkdir()
-        (tmp_path / "in" / "stack" / "frames.json").write_text("{}")
-        return tmp_path
-
-    def test_folder_tasks(self, folder: Path) -> None:
-        source, out = folder / "in", folder / "out"
-        tasks, wanted = folder_tasks("tonemap", source, out)
-        assert [(t.name, t.outputs) for t in tasks] == [
-            ("a.exr", (str(out / "a.png"),)),
-            ("sub/b.hdr", (str(out / "sub" / "b.png"),)),
-        ]
-        assert wanted.startswith("radiance files (.exr")
-        tasks, _ = folder_tasks("simulate", source, out)
-        assert [t.outputs for t in tasks] == [(str(out / "a"),), (str(out / "sub" / "b"),)]
-        tasks, wanted = folder_tasks("unwrap", source, out, single=True, confidence=True)
-        # single shot: modulus images and frame stacks (as simulate writes single-shot stacks), not the files inside
-        assert [t.name for t in tasks] == ["a.exr", "m.png", "stack"]
-        assert tasks[1].outputs == (str(out / "m.exr"), str(out / "m.confidence.exr"))
-        assert tasks[2].outputs == (str(out / "stack.exr"), str(out / "stack.confidence.exr"))
-        assert wanted.startswith("frame stacks or modulus images (")
-        tasks, wanted = folder_tasks("unwrap", source, out)
-        assert [(t.name, t.outputs) for t in tasks] == [("stack", (str(out / "stack.exr"),))]
-        assert wanted == "frame stacks (folders with a frames.json manifest)"
-
-    def test_count_values_weighs_by_pixels_not_bytes(self, folder: Path) -> None:
-        assert count_values(Task("a.exr", str(folder / "in" / "a.exr"), ("o",))) == 3 * 4 * 6
-        _write(folder / "in" / "stack" / "f0.exr", torch.zeros(1, 10, 10))
-        _write(folder / "in" / "stack" / "f1.png", torch.zeros(1, 10, 10))
-        assert count_values(Task("stack", str(folder / "in" / "stack"), ("o",))) == 200
-        (folder / "in" / "broken.exr").write_bytes(b"nope")
-        assert count_values(Task("broken.exr", str(folder / "in" / "broken.exr"), ("o",))) == 0
-
-    def test_scene_seed_is_stable(self) -> None:
-        assert scene_seed(3, "a.exr") == scene_seed(3, "a.exr")
-        assert len({scene_seed(s, n) for s in (0, 1) for n in ("a.exr", "b.exr")}) == 4
-
-
 class TestJobs:
     def test_jobs_are_picklable_module_functions(self) -> None:
         for job in (simulate_job, unwrap_job, tonemap_job):
             assert pickle.loads(pickle.dumps(job)) is job
         assert pipeline.JOBS == {"simulate": simulate_job, "unwrap": unwrap_job, "tonemap": tonemap_job}
-        import torch_modulo.cli as cli
 
-        assert cli.simulate_job is simulate_job  # still importable from the command line module
+    def test_scene_seed_is_stable(self) -> None:
+        assert scene_seed(3, "a.exr") == scene_seed(3, "a.exr")
+        assert len({scene_seed(s, n) for s in (0, 1) for n in ("a.exr", "b.exr")}) == 4
 
     def test_simulate_then_unwrap_then_tonemap(self, tmp_path: Path) -> None:
         radiance = torch.exp2(torch.linspace(0, 12, 48)).view(1, 6, 8).expand(3, -1, -1).contiguous()
@@ -365,10 +245,25 @@ class TestScaling:
         assert info["accuracy"]["median_relative_error"] < 0.05
 
 
-def test_every_radiance_reader_shares_load_radiance() -> None:
-    """The command line, the Dataset and the demo read radiance through load_radiance only."""
-    root = Path(pipeline.__file__).parent
-    for name in ("cli.py", "data.py", "demo.py"):
-        text = (root / name).read_text()
-        assert "nan_to_num" not in text and "torch.isfinite" not in text, name
-    assert "load_radiance" in (root / "data.py").read_text() and "load_radiance" in (root / "demo.py").read_text()
+def test_importing_the_jobs_imports_neither_the_batch_engine_nor_the_command_line() -> None:
+    code = (
+        "import sys, torch_modulo.pipeline\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('torch_modulo.batch', 'torch_modulo.cli', "
+        "'torch_modulo.folders'))))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"
+
+
+def test_moved_names_still_work_with_a_deprecation_warning() -> None:
+    from torch_modulo import folders, radiance
+
+    assert pipeline.load_radiance is radiance.load_radiance and pipeline.NONFINITE is radiance.NONFINITE
+    assert pipeline.RADIANCE_EXTENSIONS is radiance.RADIANCE_EXTENSIONS
+    for name in ("folder_tasks", "count_values", "MODULUS_EXTENSIONS"):
+        with pytest.warns(
+            DeprecationWarning, match=f"torch_modulo.pipeline.{name} is deprecated; use torch_modulo.folders"
+        ):
+            assert getattr(pipeline, name) is getattr(folders, name)
+    with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
+        pipeline.nothing  # noqa: B018

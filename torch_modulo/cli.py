@@ -7,174 +7,31 @@
                                                     frame stacks (or single modulus images) -> radiance EXRs
     torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs
 
-The per-file work lives in :mod:`torch_modulo.pipeline` and the folder commands share one engine
-(:mod:`torch_modulo.batch`): a progress bar, ``--workers N`` processes, inputs never written, atomic outputs,
-resume by rerunning, one bad file reported and skipped, a JSON report, a non-zero exit code when anything failed,
-and the same commands under ``torchrun`` (the ranks share the files) or on a Ray cluster (``--engine ray``). Run
-``torch-modulo COMMAND --help`` for every option with an example.
-
-(Most of this file's length is the help text of the options, kept beside the options it describes.)
+The per-file work lives in :mod:`torch_modulo.pipeline`, each folder command's inputs in
+:mod:`torch_modulo.folders`, the options' types and the jobs' options in :mod:`torch_modulo._cli_options`, and the
+folder commands share one engine (:mod:`torch_modulo.batch`): a progress bar, ``--workers N`` processes, inputs
+never written, atomic outputs, resume by rerunning, one bad file reported and skipped, a JSON report, a non-zero
+exit code when anything failed, and the same commands under ``torchrun`` (the ranks share the files) or on a Ray
+cluster (``--engine ray``). Run ``torch-modulo COMMAND --help`` for every option with an example.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from torch_modulo._argtypes import nonnegative_int as _nonnegative_int
-from torch_modulo._argtypes import parse as _parse
 from torch_modulo._argtypes import positive_int as _positive_int
+from torch_modulo._cli_options import JOB_OPTIONS, bit_depth, exposures, noise, param, positive_float, ratio, scale
 from torch_modulo.cfa import CFA_PATTERNS
-from torch_modulo.pipeline import DEFAULT_NOISE, NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
+from torch_modulo.pipeline import NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
 
 # The jobs live in torch_modulo.pipeline; they stay importable from here.
 __all__ = ["build_parser", "main", "simulate_job", "tonemap_job", "unwrap_job"]
-
-#: Multi-shot rules of ``unwrap --method`` (without ``--single``).
-_MULTI_RULES = ("robust", "paper")
-_NOISE_KEYS = {
-    "q": "electrons_per_count",
-    "electrons_per_count": "electrons_per_count",
-    "read": "read_noise",
-    "read_noise": "read_noise",
-    "dark": "dark_current",
-    "dark_current": "dark_current",
-    "prnu": "prnu",
-    "shot": "shot_noise",
-    "shot_noise": "shot_noise",
-}
-
-
-# ------------------------------------------------------------------------------------------ option types
-
-
-def _ratio(text: str) -> float:
-    value = _parse(text, float, "a number")
-    if not 1.0 < value:
-        raise argparse.ArgumentTypeError(f"expected a ratio > 1; got {value}")
-    return value
-
-
-def _bits(text: str) -> int:
-    value = _positive_int(text)
-    if value > 24:
-        raise argparse.ArgumentTypeError(f"expected a bit depth from 1 to 24; got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = _parse(text, float, "a number")
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0; got {text!r}")
-    return value
-
-
-def _exposures(text: str) -> list[float] | str:
-    """``"auto"``, or ``"1,256,65536"`` -> [1.0, 256.0, 65536.0]: one or more finite exposures > 0."""
-    if text.strip() == "auto":
-        return "auto"
-    parts = [p.strip() for p in text.split(",")]
-    if not text.strip() or any(not p for p in parts):
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated exposures such as 1,256,65536, or auto; got {text!r}"
-        )
-    values = []
-    for part in parts:
-        try:
-            value = float(part)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"exposure {part!r} in {text!r} is not a number") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"exposures must be finite and > 0; got {part!r} in {text!r}")
-        values.append(value)
-    return values
-
-
-def _scale(text: str) -> str | float:
-    if text == "auto":
-        return "auto"
-    try:
-        return _positive_float(text)
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"expected 'auto' or a number > 0; got {text!r}") from None
-
-
-def _flag_value(text: str, where: str) -> bool:
-    lowered = text.lower()
-    if lowered in ("1", "true", "on", "yes"):
-        return True
-    if lowered in ("0", "false", "off", "no"):
-        return False
-    raise argparse.ArgumentTypeError(f"{where} must be on or off; got {text!r}")
-
-
-def _noise(text: str) -> dict[str, Any] | str:
-    """A ``--noise`` value -> NoiseModel fields (validated), or ``"none"``.
-
-    ``none``; ``default`` (the photon-counting preset); a preset name; or KEY=VALUE pairs (``read=2,prnu=0.01``),
-    optionally after a preset name (``q16,read=20``) whose fields they change (else the photon-counting preset's).
-    """
-    from torch_modulo.noise import PRESETS, NoiseModel
-
-    text = text.strip()
-    if text == "none":
-        return "none"
-    items = [item.strip() for item in text.split(",")]
-    base = DEFAULT_NOISE if items[0] == "default" else items[0]
-    if items[0] == "default" or base in PRESETS:
-        items = items[1:]
-    else:
-        base = DEFAULT_NOISE
-    fields: dict[str, Any] = dict(PRESETS[base])
-    for item in items:
-        key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep or key not in _NOISE_KEYS:
-            raise argparse.ArgumentTypeError(
-                f"expected none, default, a preset ({', '.join(PRESETS)}) or KEY=VALUE pairs with keys q, read, "
-                f"dark, prnu, shot; got {item!r}"
-            )
-        name = _NOISE_KEYS[key]
-        if name == "shot_noise":
-            fields[name] = _flag_value(value.strip(), "shot")
-        else:
-            try:
-                fields[name] = float(value)
-            except ValueError:
-                raise argparse.ArgumentTypeError(f"noise {key}={value!r} is not a number") from None
-    try:
-        return NoiseModel(**fields).to_dict()
-    except (TypeError, ValueError) as error:
-        raise argparse.ArgumentTypeError(f"bad noise {text!r}: {error}") from None
-
-
-def _param_value(text: str) -> Any:
-    lowered = text.lower()
-    if lowered == "none":
-        return None
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    if "," in text:
-        return [_param_value(p) for p in text.split(",")]
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
-def _param(text: str) -> tuple[str, Any]:
-    name, sep, value = text.partition("=")
-    if not sep or not name.strip() or not value.strip():
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE such as key=0.36; got {text!r}")
-    return name.strip(), _param_value(value.strip())
-
 
 # ------------------------------------------------------------------------------------------------ parser
 
@@ -256,7 +113,7 @@ def _add_folder_options(sub: argparse.ArgumentParser, what_in: str, what_out: st
     )
     group.add_argument(
         "--merge-timeout",
-        type=_positive_float,
+        type=positive_float,
         default=None,
         metavar="S",
         help="under torchrun: seconds rank 0 waits for the other ranks' reports after its own work, then reports "
@@ -279,10 +136,10 @@ def _add_demo(commands: Any) -> None:
     )
     demo.add_argument("--out", default="demo_out", help="output folder (default: %(default)s)")
     demo.add_argument("--scene", default=None, help="an EXR or HDR radiance file (default: the embedded scene)")
-    demo.add_argument("--bits", type=_bits, default=8, help="sensor bit depth, 1 to 24 (default: %(default)s)")
+    demo.add_argument("--bits", type=bit_depth, default=8, help="sensor bit depth, 1 to 24 (default: %(default)s)")
     demo.add_argument(
         "--ratio",
-        type=_ratio,
+        type=ratio,
         default=64.0,
         help="multi-shot neighbouring exposure ratio, at most 2**bits (default: %(default)s)",
     )
@@ -314,36 +171,51 @@ _NOISE_HELP = (
 )
 
 
-def _add_simulate(commands: Any) -> None:  # long only because of the options' help text, one argument per call
+def _add_noise(sub: argparse.ArgumentParser, default: str) -> None:
+    """``--noise MODEL`` (:func:`torch_modulo._cli_options.noise`), whose help starts with what ``default`` says."""
+    sub.add_argument("--noise", type=noise, default=None, metavar="MODEL", help=_NOISE_HELP.format(default=default))
+
+
+def _add_cfa(sub: argparse.ArgumentParser, text: str) -> None:
+    """``--cfa PATTERN``: one of the colour filter arrays, default none, with the help ``text``."""
+    sub.add_argument("--cfa", choices=CFA_PATTERNS, default=None, metavar="PATTERN", help=text)
+
+
+_SIMULATE_DESCRIPTION = (
+    "Capture every HDR radiance file in IN (.exr .hdr .pfm .tif .tiff) with a simulated modulo sensor (paper "
+    "Eq. 1, with shot and read noise by default, as torch_modulo.sensors.SimulatedModuloSensor()) at each "
+    "exposure, and write one frame stack per scene: the folder OUT/<scene>/ with one frame per exposure "
+    "(frame_b000_m00.exr, ...; each frame's exposure and bit depth in its metadata), the manifest "
+    "frames.json (with the noise model, read back by torch_modulo.sensors.FileSensor and by `torch-modulo "
+    "unwrap`, which decodes with it) and, unless --no-truth, radiance.exr: the scaled radiance the frames "
+    "were captured from (counts per unit exposure), the ground truth for training and scoring. By default "
+    "(--exposures auto) each scene gets the exposures that plan_exposures plans for its own dynamic range, "
+    "bit depth and noise model; one given exposure makes a single-shot stack whose frame wraps (for "
+    "`torch-modulo unwrap --single`). With --cfa the sensor is a colour sensor: RGB scenes are mosaicked "
+    "by its colour filter array and the frames are mosaics (one channel, the pattern in the metadata), "
+    "while radiance.exr stays RGB."
+)
+_SIMULATE_EXAMPLES = (
+    "examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
+    "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
+    "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
+    "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
+)
+
+
+def _add_simulate(commands: Any) -> None:
     simulate = commands.add_parser(
         "simulate",
         help="HDR files -> simulated modulo frame stacks (training data)",
         formatter_class=_Formatter,
-        description=_wrap(
-            "Capture every HDR radiance file in IN (.exr .hdr .pfm .tif .tiff) with a simulated modulo sensor (paper "
-            "Eq. 1, with shot and read noise by default, as torch_modulo.sensors.SimulatedModuloSensor()) at each "
-            "exposure, and write one frame stack per scene: the folder OUT/<scene>/ with one frame per exposure "
-            "(frame_b000_m00.exr, ...; each frame's exposure and bit depth in its metadata), the manifest "
-            "frames.json (with the noise model, read back by torch_modulo.sensors.FileSensor and by `torch-modulo "
-            "unwrap`, which decodes with it) and, unless --no-truth, radiance.exr: the scaled radiance the frames "
-            "were captured from (counts per unit exposure), the ground truth for training and scoring. By default "
-            "(--exposures auto) each scene gets the exposures that plan_exposures plans for its own dynamic range, "
-            "bit depth and noise model; one given exposure makes a single-shot stack whose frame wraps (for "
-            "`torch-modulo unwrap --single`). With --cfa the sensor is a colour sensor: RGB scenes are mosaicked "
-            "by its colour filter array and the frames are mosaics (one channel, the pattern in the metadata), "
-            "while radiance.exr stays RGB."
-        ),
-        epilog="examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
-        "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
-        "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
-        "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
-        + _FOLDER_EPILOG.format(command="simulate"),
+        description=_wrap(_SIMULATE_DESCRIPTION),
+        epilog=_SIMULATE_EXAMPLES + _FOLDER_EPILOG.format(command="simulate"),
     )
     _add_folder_options(simulate, "folder of HDR radiance files (or one file)", "folder for the frame stacks")
-    simulate.add_argument("--bits", type=_bits, default=8, help="sensor bit depth N, 1 to 24 (default: 8)")
+    simulate.add_argument("--bits", type=bit_depth, default=8, help="sensor bit depth N, 1 to 24 (default: 8)")
     simulate.add_argument(
         "--exposures",
-        type=_exposures,
+        type=exposures,
         default="auto",
         metavar="auto|T1,T2,...",
         help="auto (default): per scene, plan_exposures(stops, bits, noise=..., longest=1) for the scene's own "
@@ -351,13 +223,7 @@ def _add_simulate(commands: Any) -> None:  # long only because of the options' h
         "exposures, comma-separated, e.g. 1,16,256 (under noise, ratios the noise model says are "
         "unsafe draw a warning naming a safe plan; one exposure: a single-shot stack)",
     )
-    simulate.add_argument(
-        "--noise",
-        type=_noise,
-        default=None,
-        metavar="MODEL",
-        help=_NOISE_HELP.format(default="the sensor's noise: photon-counting (default)"),
-    )
+    _add_noise(simulate, "the sensor's noise: photon-counting (default)")
     simulate.add_argument(
         "--seed",
         type=_nonnegative_int,
@@ -367,7 +233,7 @@ def _add_simulate(commands: Any) -> None:  # long only because of the options' h
     )
     simulate.add_argument(
         "--scale",
-        type=_scale,
+        type=scale,
         default="auto",
         metavar="auto|S",
         help="radiance multiplier into counts per unit exposure; auto (default): with --exposures auto, the 0.1th "
@@ -389,12 +255,9 @@ def _add_simulate(commands: Any) -> None:  # long only because of the options' h
         help="also write radiance.exr, the scaled ground truth (default: on)",
     )
     simulate.add_argument("--nonfinite", choices=NONFINITE, default="replace", help=_NONFINITE_HELP)
-    simulate.add_argument(
-        "--cfa",
-        choices=CFA_PATTERNS,
-        default=None,
-        metavar="PATTERN",
-        help=f"capture with a colour sensor whose colour filter array is PATTERN ({', '.join(CFA_PATTERNS)}: the "
+    _add_cfa(
+        simulate,
+        f"capture with a colour sensor whose colour filter array is PATTERN ({', '.join(CFA_PATTERNS)}: the "
         "top-left 2 x 2 cell read row by row): the frames are mosaics of the RGB radiance, noise per photosite, "
         "with the pattern in the metadata; scenes that are not RGB fail (each named in the report), an odd height "
         "or width loses its last row or column; radiance.exr stays RGB (default: none, one frame channel per "
@@ -402,38 +265,43 @@ def _add_simulate(commands: Any) -> None:  # long only because of the options' h
     )
 
 
-def _add_unwrap(commands: Any) -> None:  # long only because of the options' help text, one argument per call
+_UNWRAP_DESCRIPTION = (
+    "Recover radiance. Default (multi shot): every frame stack in IN, i.e. every folder with a frames.json "
+    "manifest as `torch-modulo simulate` or torch_modulo.sensors.write_frames write it, becomes "
+    "OUT/<stack>.exr by rollover counting (unwrap_multi), noise-aware with the noise model recorded in the "
+    "stack's metadata (see --noise; where none is recorded, noise-free: paper Eqs. 6-7); stacks of a "
+    "conventional sensor, kind 'intensity', are merged with merge_intensity instead. With --single (paper "
+    "Eqs. 3-5): every stack of one exposure (`torch-modulo simulate --exposures 1`) and every modulus "
+    "image in IN outside the stacks (.exr .png .tif .tiff .pfm) is unwrapped alone (unwrap_single, see "
+    "--method) "
+    "and becomes OUT/<name>.exr, the restored counts divided by the frame's exposure. Output values are "
+    "radiance in counts per unit exposure; the metadata records the source, bit depth, exposures and noise "
+    "model. Where a stack holds its ground truth (radiance.exr, as simulate writes it) the report scores "
+    "each result against it (multi shot: median relative error and the share of values more than 50% "
+    "off; single shot: exact rollover counts and PSNR) and the summary line gives the means; the "
+    "decoder's warnings (exposure ratios too large for the noise) are printed and kept in the report. "
+    "Mosaics of a colour sensor (the pattern recorded in the stack, or --cfa) are unwrapped first (multi "
+    "shot per photosite, single shot with unwrap_single(..., cfa=...)) and then demosaiced to RGB radiance "
+    "(torch_modulo.cfa.demosaic), which is scored against the RGB truth."
+)
+_UNWRAP_EXAMPLES = (
+    "examples:\n  torch-modulo unwrap stacks/ radiance/\n"
+    "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
+    "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
+    "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
+    "  torch-modulo unwrap big_frames/ radiance/ --single --bits 8 --method learned:levels=False   # faster\n"
+    "  torch-modulo unwrap colour/ radiance/                   # mosaics (simulate --cfa): demosaiced RGB\n"
+    "  torch-modulo unwrap camera/ radiance/ --single --bits 8 --cfa RGGB   # mosaicked modulus images\n"
+)
+
+
+def _add_unwrap(commands: Any) -> None:
     unwrap = commands.add_parser(
         "unwrap",
         help="frame stacks (or single modulus images) -> radiance EXRs",
         formatter_class=_Formatter,
-        description=_wrap(
-            "Recover radiance. Default (multi shot): every frame stack in IN, i.e. every folder with a frames.json "
-            "manifest as `torch-modulo simulate` or torch_modulo.sensors.write_frames write it, becomes "
-            "OUT/<stack>.exr by rollover counting (unwrap_multi), noise-aware with the noise model recorded in the "
-            "stack's metadata (see --noise; where none is recorded, noise-free: paper Eqs. 6-7); stacks of a "
-            "conventional sensor, kind 'intensity', are merged with merge_intensity instead. With --single (paper "
-            "Eqs. 3-5): every stack of one exposure (`torch-modulo simulate --exposures 1`) and every modulus "
-            "image in IN outside the stacks (.exr .png .tif .tiff .pfm) is unwrapped alone (unwrap_single, see "
-            "--method) "
-            "and becomes OUT/<name>.exr, the restored counts divided by the frame's exposure. Output values are "
-            "radiance in counts per unit exposure; the metadata records the source, bit depth, exposures and noise "
-            "model. Where a stack holds its ground truth (radiance.exr, as simulate writes it) the report scores "
-            "each result against it (multi shot: median relative error and the share of values more than 50% "
-            "off; single shot: exact rollover counts and PSNR) and the summary line gives the means; the "
-            "decoder's warnings (exposure ratios too large for the noise) are printed and kept in the report. "
-            "Mosaics of a colour sensor (the pattern recorded in the stack, or --cfa) are unwrapped first (multi "
-            "shot per photosite, single shot with unwrap_single(..., cfa=...)) and then demosaiced to RGB radiance "
-            "(torch_modulo.cfa.demosaic), which is scored against the RGB truth."
-        ),
-        epilog="examples:\n  torch-modulo unwrap stacks/ radiance/\n"
-        "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
-        "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
-        "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
-        "  torch-modulo unwrap big_frames/ radiance/ --single --bits 8 --method learned:levels=False   # faster\n"
-        "  torch-modulo unwrap colour/ radiance/                   # mosaics (simulate --cfa): demosaiced RGB\n"
-        "  torch-modulo unwrap camera/ radiance/ --single --bits 8 --cfa RGGB   # mosaicked modulus images\n"
-        + _FOLDER_EPILOG.format(command="unwrap"),
+        description=_wrap(_UNWRAP_DESCRIPTION),
+        epilog=_UNWRAP_EXAMPLES + _FOLDER_EPILOG.format(command="unwrap"),
     )
     _add_folder_options(
         unwrap,
@@ -447,26 +315,21 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
     )
     unwrap.add_argument(
         "--bits",
-        type=_bits,
+        type=bit_depth,
         default=None,
         help="sensor bit depth (default: from each file's metadata, manifest or sidecar)",
     )
     unwrap.add_argument(
         "--exposure",
-        type=_positive_float,
+        type=positive_float,
         default=None,
         help="with --single: the exposure of modulus images (default: from the metadata, else 1; stacks carry "
         "their own)",
     )
-    unwrap.add_argument(
-        "--noise",
-        type=_noise,
-        default=None,
-        metavar="MODEL",
-        help=_NOISE_HELP.format(
-            default="multi shot: the sensor's noise model for noise-aware decoding (default: the one each stack "
-            "records, noise-free where none is; none forces noise-free decoding)"
-        ),
+    _add_noise(
+        unwrap,
+        "multi shot: the sensor's noise model for noise-aware decoding (default: the one each stack "
+        "records, noise-free where none is; none forces noise-free decoding)",
     )
     unwrap.add_argument(
         "--confidence",
@@ -493,12 +356,9 @@ def _add_unwrap(commands: Any) -> None:  # long only because of the options' hel
         "unwrap_single's options for it as NAME:KEY=VALUE,... (e.g. learned:levels=False, no level moves, faster; "
         "guided:denoise=0.7); --solver is its deprecated former name (--single only)",
     )
-    unwrap.add_argument(
-        "--cfa",
-        choices=CFA_PATTERNS,
-        default=None,
-        metavar="PATTERN",
-        help=f"the colour filter array of mosaicked frames ({', '.join(CFA_PATTERNS)}) where the files do not "
+    _add_cfa(
+        unwrap,
+        f"the colour filter array of mosaicked frames ({', '.join(CFA_PATTERNS)}) where the files do not "
         "record one, e.g. a colour camera's modulus images; a stack or image that records another pattern fails "
         "(default: the pattern each stack or image records; none: not mosaics)",
     )
@@ -533,7 +393,7 @@ def _add_tonemap(commands: Any) -> None:
     )
     tonemap.add_argument(
         "--param",
-        type=_param,
+        type=param,
         action="append",
         default=[],
         metavar="NAME=VALUE",
@@ -564,140 +424,6 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (_add_demo, _add_simulate, _add_unwrap, _add_tonemap):
         add(commands)
     return parser
-
-
-# ------------------------------------------------------------------------------------------ job options
-# The options of each folder command's job (JSON-compatible; they decide whether an existing output is complete).
-# Usage errors end here with the subcommand's usage (exit code 2), before anything is written.
-
-
-def _noise_option(value: dict[str, Any] | str | None, default: Any) -> Any:
-    """A parsed ``--noise``: ``default`` when not given, None for ``none``, else the NoiseModel fields."""
-    if value is None:
-        return default
-    return None if value == "none" else value
-
-
-def _simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
-    if args.format != "exr" and args.bits > 16:
-        sub.error(f"--format {args.format} holds at most 16 bits; got --bits {args.bits} (use --format exr)")
-    if args.exposures != "auto":
-        taus = sorted(args.exposures)
-        too_far = [(a, b) for a, b in zip(taus, taus[1:], strict=False) if b / a > 2**args.bits]
-        if too_far:
-            a, b = too_far[0]
-            print(
-                f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
-                "`torch-modulo unwrap` cannot count the rollovers between them",
-                file=sys.stderr,
-            )
-    from torch_modulo.noise import NoiseModel
-
-    options = {
-        "bits": args.bits,
-        "exposures": args.exposures,
-        "noise": _noise_option(args.noise, NoiseModel.preset(DEFAULT_NOISE).to_dict()),
-        "seed": args.seed,
-        "scale": args.scale,
-        "format": args.format,
-        "truth": args.truth,
-    }
-    if args.cfa is not None:  # only when given: outputs completed without it stay complete
-        options["cfa"] = args.cfa
-    return _with_nonfinite(options, args.nonfinite)
-
-
-def _with_nonfinite(options: dict[str, Any], nonfinite: str) -> dict[str, Any]:
-    # Only a non-default policy joins the options: outputs an earlier version completed (files without NaN or
-    # infinite values, the only ones it accepted) are the same under the default, so they stay complete.
-    if nonfinite != "replace":
-        options["nonfinite"] = nonfinite
-    return options
-
-
-def _unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
-    if args.exposure is not None and not args.single:
-        sub.error("--exposure applies to --single only (frame stacks carry their exposures)")
-    option = getattr(args, "method_option", None) or "--method"
-    if args.confidence and not args.single:
-        sub.error("--confidence applies to --single only")
-    if args.noise is not None and args.single:
-        sub.error("--noise applies to multi shot only (unwrap_single takes no noise model)")
-    if args.noise not in (None, "none") and args.method == "paper":
-        sub.error(
-            "--method paper decodes Eqs. 6-7 as printed and takes no noise model: use --method robust, or --noise none"
-        )
-    rule, method, method_options = "robust", None, {}  # the keys stay "method" (multi shot), "solver" (single shot)
-    if args.single:
-        from torch_modulo.protocols import parse_method
-        from torch_modulo.singleshot import METHODS, SingleShotUnwrap
-
-        if args.method is not None:
-            try:
-                method, method_options = parse_method(args.method)
-            except ValueError as error:
-                sub.error(f"{option}: {error}")
-            if method not in METHODS:
-                sub.error(f"{option} must be one of {', '.join(sorted(METHODS))}; got {args.method!r}")
-            reserved = {"bits": "--bits", "cfa": "--cfa", "workers": "--workers", "method": "--method"}
-            for key in sorted(set(method_options) & {*reserved, "return_info"}):
-                where = f"; use {reserved[key]}" if key in reserved else ""
-                sub.error(f"{option} {args.method!r}: {key} is not a method option{where}")
-            try:  # the options are checked now, before any file: an unknown one, a bad value, a missing file
-                SingleShotUnwrap(bits=8, method=method, **method_options)
-            except (TypeError, ValueError, FileNotFoundError) as error:
-                sub.error(f"bad {option} {args.method!r}: {error}")
-    elif option == "--solver":
-        sub.error("--solver applies to --single only")
-    elif args.method is not None:
-        if args.method not in _MULTI_RULES:
-            from torch_modulo.singleshot import METHODS
-
-            if args.method.partition(":")[0] in METHODS:
-                sub.error(f"--method {args.method} is a single-shot method: use it with --single")
-            choices = ", ".join(repr(r) for r in _MULTI_RULES)
-            sub.error(f"argument --method/--solver: invalid choice: {args.method!r} (choose from {choices})")
-        rule = args.method
-    options = {
-        "single": args.single,
-        "bits": args.bits,
-        "exposure": args.exposure,
-        "method": rule,
-        "noise": _noise_option(args.noise, "stack"),
-        "solver": method,
-        "confidence": args.confidence,
-        # Graph cuts inside each job use processes of their own only when the batch itself runs one at a time.
-        "_solver_workers": None if args.workers == 1 else 1,
-    }
-    # Only when not the default: outputs completed before these options existed stay complete.
-    if method_options:
-        options["solver_options"] = dict(sorted(method_options.items()))
-    if args.single and method in (None, "learned"):
-        # "learned" moves regions by its level costs since version 2: its earlier outputs are not complete.
-        options["learned_version"] = 2
-    if args.cfa is not None:
-        options["cfa"] = args.cfa
-    if not args.demosaic:
-        options["demosaic"] = False
-    return options
-
-
-def _tonemap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
-    from torch_modulo.pipeline import tonemap_options
-
-    srgb = args.op != "gamma" if args.srgb is None else args.srgb  # gamma's own gamma encodes for display
-    try:
-        options = tonemap_options(args.op, dict(args.param), srgb=srgb, depth=args.depth)
-    except (TypeError, ValueError) as error:
-        sub.error(f"bad --param for --op {args.op}: {error}")
-    return _with_nonfinite(options, args.nonfinite)
-
-
-_OPTIONS: dict[str, Callable[[argparse.Namespace, argparse.ArgumentParser], dict[str, Any]]] = {
-    "simulate": _simulate_options,
-    "unwrap": _unwrap_options,
-    "tonemap": _tonemap_options,
-}
 
 
 # ------------------------------------------------------------------------------------------------ running
@@ -733,7 +459,7 @@ def _report_clash(report: Path, source: Path, out: Path, tasks: Sequence[Any]) -
 
 
 def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    from torch_modulo import pipeline
+    from torch_modulo import folders, pipeline
     from torch_modulo.batch import BatchError, check_folders, distributed_env, require_ray, run_batch
 
     sub = _subparser(parser, args.command)
@@ -745,10 +471,10 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
             require_ray()
     except BatchError as error:
         sub.error(str(error))
-    options = _OPTIONS[args.command](args, sub)
+    options = JOB_OPTIONS[args.command](args, sub)
     single = getattr(args, "single", False)
     try:
-        tasks, wanted = pipeline.folder_tasks(
+        tasks, wanted = folders.folder_tasks(
             args.command, source, out, single=single, confidence=getattr(args, "confidence", False)
         )
     except OSError as error:
@@ -774,7 +500,7 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
             report_path=args.report,
             ray_address=args.ray_address,
             preload=pipeline.PRELOAD[args.command] + (("torch_modulo.singleshot",) if single else ()),
-            weigh=pipeline.count_values,
+            weigh=folders.count_values,
             merge_timeout=args.merge_timeout,
         )
     except BatchError as error:

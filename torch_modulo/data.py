@@ -30,7 +30,7 @@ from torch.utils.data import Dataset
 
 from torch_modulo._checks import check_bits, check_choice, check_flag
 from torch_modulo.capture import capture_modulo
-from torch_modulo.pipeline import NONFINITE, load_radiance
+from torch_modulo.radiance import NONFINITE, load_radiance
 from torch_modulo.sensors.simulated import NoiseModel, simulate_capture
 
 __all__ = ["HDR_EXTENSIONS", "HDRFolder", "RandomModuloCapture"]
@@ -56,7 +56,7 @@ def _size(value: int | Sequence[int] | None, name: str) -> tuple[int, int] | Non
 class HDRFolder(Dataset):
     """HDR radiance maps from a folder, as (C, H, W) float tensors >= 0.
 
-    Each item is read with :func:`torch_modulo.pipeline.load_radiance`, the reader the command line and the demo
+    Each item is read with :func:`torch_modulo.radiance.load_radiance`, the reader the command line and the demo
     use: negative values (which lossy compression and sensor processing leave behind) become 0, and NaN and
     infinite values are replaced (NaN and -Inf by 0, +Inf by the image's largest finite value) or, with
     ``nonfinite="raise"``, refused with the file named. The item is given ``channels`` channels, optionally

@@ -31,13 +31,13 @@ import numpy as np
 import torch
 
 from torch_modulo import io
+from torch_modulo._atomic import write_json
 from torch_modulo.assets import default_scene_path
-from torch_modulo.batch import write_json
 from torch_modulo.capture import capture_intensity, capture_modulo
 from torch_modulo.metrics import exact_k_map, exact_k_share, psnr
 from torch_modulo.multishot import merge_intensity, unwrap_multi
-from torch_modulo.pipeline import load_radiance
 from torch_modulo.protocols import align_offsets
+from torch_modulo.radiance import load_radiance
 from torch_modulo.singleshot import unwrap_confidence, unwrap_single
 from torch_modulo.tonemap import REC709_LUMA, tonemap_histogram
 
@@ -91,7 +91,7 @@ def _single_shot(
     seconds = time.perf_counter() - start
     wrong = ~exact_k_map(restored, truth, bits)  # offsets aligned as in exact_k
     low = unwrap_confidence(restored, bits) < LOW_CONFIDENCE
-    single = {
+    single: dict[str, Any] = {
         "method": method,
         "exact_k": float(exact_k_share(restored, truth, bits)[0]),
         "psnr_db": float(psnr(align_offsets(restored, truth, bits), truth, peak=float(truth.max()))[0]),  # as exact_k
@@ -126,7 +126,7 @@ def _multi_shot(
     seconds = time.perf_counter() - start
     merged = merge_intensity(frames, taus, bits)
     exact_counts = torch.floor(radiance * taus[-1])
-    multi = {
+    multi: dict[str, Any] = {
         "exposures": taus,
         "exact_k": float((unwrap_multi(moduli, taus, bits, return_counts=True) == exact_counts).double().mean()),
         "median_relative_error_modulo": _relative_error(multi_radiance, radiance),
@@ -220,7 +220,7 @@ def run_demo(
     Args:
         out_dir: folder for the outputs (created if needed; existing demo files in it are replaced atomically).
         scene: an HDR file (EXR/HDR); default the embedded CC0 scene. It is read with
-            :func:`~torch_modulo.pipeline.load_radiance` as RGB (grey repeated); NaN and infinite values are
+            :func:`~torch_modulo.radiance.load_radiance` as RGB (grey repeated); NaN and infinite values are
             replaced, negative values clamped to 0.
         bits: the simulated sensors' bit depth.
         ratio: neighbouring exposure ratio of the multi-shot captures (at most ``2**bits``).

@@ -43,8 +43,8 @@ Orientation
     so PFM files from other tools read the right way up.
 
 Writes are atomic: the image goes to a hidden temporary file with the same extension in the destination folder,
-which is checked, flushed to the disk (``fsync``) and only then renamed over the destination (``os.replace``), so
-a reader never sees a half-written file. PNG files are read back and compared with the image before the rename,
+which is checked, flushed to the disk (``fsync``) and only then renamed into place over the destination, so a
+reader never sees a half-written file. PNG files are read back and compared with the image before the rename,
 because the PNG writer does not report a short write (a full disk); every other format reports it itself. A
 failed write raises ``OSError`` and leaves nothing under the destination's name.
 
@@ -55,23 +55,21 @@ message names the file.
 
 from __future__ import annotations
 
-import contextlib
 import errno
-import hashlib
 import json
 import os
-import secrets
 import shutil
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 import OpenImageIO as oiio
 import torch
 
+from torch_modulo._atomic import atomic_file
 from torch_modulo._checks import check_flag
 from torch_modulo._image_metadata import (
     BLOB_KEY,
@@ -190,7 +188,7 @@ def _resolve_dtype(dtype: object, fmt: _Format, path: Path, metadata: dict[str, 
             return "uint16"
         return "uint8"
     try:
-        name = _DTYPE_ALIASES.get(dtype)  # type: ignore[call-overload]
+        name = _DTYPE_ALIASES.get(dtype)
     except TypeError:
         name = None
     if name is None or name not in fmt.dtypes:
@@ -269,108 +267,6 @@ def _encode(pixels: torch.Tensor, kind: str, fmt: _Format, normalized: bool, pat
     return pixels.numpy().astype(np.float32)
 
 
-# The longest file name most file systems take (NAME_MAX), in bytes.
-_NAME_MAX = 255
-# Bytes a hidden temporary name adds to the name it stands for, at most: "." before it, and ".<pid>-<8 hex>.tmp"
-# (files) or ".tmp-<pid>-<8 hex>" / ".old-<pid>-<8 hex>" (folders) after it, for a process id of up to 10 digits.
-_TEMPORARY_EXTRA = 25
-
-
-def _name_bytes(text: str) -> int:
-    return len(os.fsencode(text))
-
-
-def temporary_stem(name: str, suffix: str = "") -> str:
-    """How the hidden temporary names beside the file or folder ``name`` spell it (used by :func:`write_image` and
-    :mod:`torch_modulo.batch.atomic`; not part of the public API).
-
-    ``name`` less ``suffix`` (a temporary name that keeps the extension at its end passes it). When the temporary
-    name would pass the file system's 255 bytes (``NAME_MAX``, counted in UTF-8 bytes, not characters), the part
-    kept is shortened to its first bytes (whole characters), ``~`` and 8 hex digits of a hash of the whole ``name``,
-    so a legal final name always has a legal temporary name and the clean-up still tells whose temporary it is.
-
-    Example:
-        >>> temporary_stem("scene.exr", ".exr")
-        'scene'
-        >>> short = temporary_stem("é" * 120 + ".exr", ".exr")
-        >>> len(short.encode()), short[-9:-8]
-        (225, '~')
-    """
-    stem = name[: len(name) - len(suffix)] if suffix and name.endswith(suffix) else name
-    room = _NAME_MAX - _TEMPORARY_EXTRA - _name_bytes(suffix)
-    if _name_bytes(stem) <= room:
-        return stem
-    digest = hashlib.sha256(os.fsencode(name)).hexdigest()[:8]
-    budget, used, kept = max(room - 9, 0), 0, []
-    for char in stem:
-        size = _name_bytes(char)
-        if used + size > budget:
-            break
-        kept.append(char)
-        used += size
-    return f"{''.join(kept)}~{digest}"
-
-
-def _folder_temporaries(final: Path) -> tuple[Path, Path]:
-    """The hidden names beside the folder ``final`` that a swap builds it under (``.<name>.tmp-<pid>-<hex>``) and
-    moves the old one aside to (``.<name>.old-<pid>-<hex>``, same tag), for :mod:`torch_modulo.batch.atomic` and
-    the frame stacks' writer."""
-    tag = f"{os.getpid()}-{secrets.token_hex(4)}"
-    stem = temporary_stem(final.name)
-    return final.with_name(f".{stem}.tmp-{tag}"), final.with_name(f".{stem}.old-{tag}")
-
-
-def _swap_folder(tmp: Path, final: Path, old: Path) -> None:
-    """Move the existing ``final`` aside to ``old`` and ``tmp`` into its place; if the second rename fails, put the
-    old folder back (if that fails too, both stay: the next clean-up of stale temporaries puts ``old`` back) and
-    raise the first error."""
-    os.replace(final, old)
-    try:
-        os.replace(tmp, final)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.replace(old, final)
-        raise
-
-
-def _discard_folder(tmp: Path, old: Path, final: Path) -> None:
-    """Remove the new folder ``tmp`` of a swap that failed, unless the old folder ``old`` could not be put back as
-    ``final``: then both stay, for the clean-up of stale temporaries to restore ``old``."""
-    if os.path.lexists(old) and not os.path.lexists(final):
-        return
-    shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _temporary_sibling(path: Path) -> Path:
-    """A hidden file beside ``path`` with the same extension, so OpenImageIO picks the same format; its name is at
-    most 255 bytes when ``path``'s is (:func:`temporary_stem`)."""
-    stem = temporary_stem(path.name, path.suffix)
-    return path.with_name(f".{stem}.{os.getpid()}-{secrets.token_hex(4)}.tmp{path.suffix}")
-
-
-def _naming_final(error: OSError, tmp: Path, path: Path, *, unnamed: Path | None = None) -> OSError:
-    """``error`` (same type, errno and text) naming ``path`` wherever it named the temporary file or folder ``tmp``;
-    ``error`` itself when it does not name it. With ``unnamed``, always a new error, and one that names no file (a
-    write that failed on close, a full disk) names ``unnamed``."""
-    if unnamed is None and error.filename != str(tmp) and str(tmp) not in str(error):
-        return error
-
-    def fix(text: object) -> object:
-        return text.replace(str(tmp), str(path)) if isinstance(text, str) else text
-
-    if error.errno is not None and error.strerror is not None:
-        where = str(unnamed) if error.filename is None and unnamed is not None else fix(error.filename)
-        return type(error)(error.errno, fix(error.strerror), where)
-    return type(error)(*(fix(arg) for arg in error.args))
-
-
-def _discard_file(tmp: Path) -> None:
-    """Remove a temporary file, if there is one; a failure here (a read-only folder) must not hide the error that
-    is being handled."""
-    with contextlib.suppress(OSError):
-        tmp.unlink(missing_ok=True)
-
-
 # ------------------------------------------------------------------------------------------------ public API
 
 
@@ -402,6 +298,36 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
         return metadata_from_spec(inp.spec())
     finally:
         inp.close()
+
+
+@overload
+def read_image(
+    path: str | os.PathLike[str],
+    *,
+    with_metadata: Literal[False] = False,
+    normalized: bool = False,
+    dtype: torch.dtype = torch.float32,
+) -> torch.Tensor: ...
+
+
+@overload
+def read_image(
+    path: str | os.PathLike[str],
+    *,
+    with_metadata: Literal[True],
+    normalized: bool = False,
+    dtype: torch.dtype = torch.float32,
+) -> tuple[torch.Tensor, dict[str, Any]]: ...
+
+
+@overload
+def read_image(
+    path: str | os.PathLike[str],
+    *,
+    with_metadata: bool,
+    normalized: bool = False,
+    dtype: torch.dtype = torch.float32,
+) -> torch.Tensor | tuple[torch.Tensor, dict[str, Any]]: ...
 
 
 def read_image(
@@ -455,7 +381,7 @@ def read_image(
         pixels = inp.read_image(0, 0, 0, spec.nchannels, fmt)
         if pixels is None:
             raise OSError(f"cannot read image {path}: {_errors(inp)}")
-        metadata = metadata_from_spec(spec) if with_metadata else None
+        metadata = metadata_from_spec(spec) if with_metadata else {}
         # Files with fewer bits than their container (12-bit TIFF, 1/2/4-bit PNG) are expanded by OpenImageIO to
         # the container's full range; shift back to the stored integers.
         stored_bits = spec.get_int_attribute("oiio:BitsPerSample", 0)
@@ -477,7 +403,7 @@ def read_image(
         tensor = tensor / float(top)
     image = tensor.permute(2, 0, 1).contiguous().to(dtype)
     if with_metadata:
-        return image, metadata  # type: ignore[return-value]
+        return image, metadata
     return image
 
 
@@ -571,19 +497,8 @@ def write_image(
                 stacklevel=2,
             )
 
-    tmp = _temporary_sibling(path)
-    try:
+    with atomic_file(path, keep_suffix=True) as tmp:
         _write_checked(tmp, spec, np.ascontiguousarray(array), fmt, path)
-        os.replace(tmp, path)
-    except OSError as error:
-        _discard_file(tmp)
-        fixed = _naming_final(error, tmp, path)
-        if fixed is error:
-            raise
-        raise fixed from error
-    except BaseException:
-        _discard_file(tmp)
-        raise
     return path
 
 

@@ -1,18 +1,10 @@
-"""The per-file work of the ``torch-modulo`` folder commands, callable from Python: reading radiance files and the
-jobs ``simulate``, ``unwrap`` and ``tonemap`` run on each input.
-
-:func:`load_radiance` is the one way radiance files are read (the command line, :class:`torch_modulo.data.HDRFolder`
-and the demo use it), with one policy for values a radiance map cannot hold:
-
-- **Negative values** (lossy compression and sensor processing leave small ones) are clamped to 0, always.
-- **NaN and infinite values** are replaced by default (``nonfinite="replace"``): NaN and -Inf by 0, +Inf by the
-  largest finite value of the image (an overflowed pixel is at least as bright as the brightest one that did
-  not overflow). ``nonfinite="raise"`` refuses such a file instead, naming it and how many of each it holds. A
-  file with no finite value at all is refused either way: there is nothing to replace them with.
+"""The per-file jobs of the ``torch-modulo`` folder commands, callable from Python: ``simulate``, ``unwrap`` and
+``tonemap`` on one input each.
 
 The jobs follow :data:`torch_modulo.batch.JobFunction`: ``job(task, options)`` reads ``task.source`` and writes
-``task.outputs`` atomically; they are module-level functions so that worker processes can receive them.
-:func:`folder_tasks` lists a command's tasks for an input folder.
+``task.outputs`` atomically; they are module-level functions so that worker processes can receive them. They read
+radiance with :func:`torch_modulo.radiance.load_radiance` (re-exported here); :func:`torch_modulo.folders.folder_tasks`
+lists a command's tasks for an input folder.
 
 How ``simulate`` scales a scene and chooses its exposures (radiance in counts per unit exposure):
 
@@ -29,16 +21,12 @@ How ``simulate`` scales a scene and chooses its exposures (radiance in counts pe
   at 8 bits: 16 periods), so the frame wraps.
 
 Each job imports the operations it runs (sensors, unwrapping, tone mapping) when it runs, so that importing this
-module (as :mod:`torch_modulo.data` does) does not import every operation.
+module does not import every operation.
 
 Example:
-    >>> import tempfile
-    >>> from torch_modulo.io import write_image
-    >>> with tempfile.TemporaryDirectory() as folder:
-    ...     path = write_image(os.path.join(folder, "x.exr"), torch.tensor([[[1.0, -0.5], [float("inf"), 4.0]]]))
-    ...     image, counts = load_radiance(path, with_counts=True)
-    >>> image.tolist(), counts
-    ([[[1.0, 0.0], [4.0, 4.0]]], {'nan': 0, 'posinf': 1, 'neginf': 0, 'negative': 1})
+    >>> options = tonemap_options("log", {})
+    >>> sorted(JOBS), options["op"]
+    (['simulate', 'tonemap', 'unwrap'], 'log')
 """
 
 from __future__ import annotations
@@ -47,7 +35,7 @@ import hashlib
 import inspect
 import os
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -68,24 +56,22 @@ from torch_modulo._scene_rules import (
     restored_confidence,
     unsafe_ratio_warnings,
 )
+from torch_modulo._task import Task
 from torch_modulo.io import read_image
+from torch_modulo.radiance import NONFINITE, RADIANCE_EXTENSIONS, load_radiance
 
 if TYPE_CHECKING:
-    from torch_modulo.batch import Task
     from torch_modulo.sensors import FrameStack
 
 __all__ = [
     "DEFAULT_NOISE",
     "JOBS",
-    "MODULUS_EXTENSIONS",
     "NONFINITE",
     "PRELOAD",
     "RADIANCE_EXTENSIONS",
     "TONEMAP_OPS",
     "TRUTH_FILE",
-    "count_values",
     "fit_scale",
-    "folder_tasks",
     "load_radiance",
     "plan_scene",
     "scene_seed",
@@ -95,14 +81,8 @@ __all__ = [
     "unwrap_job",
 ]
 
-#: Radiance files ``simulate`` and ``tonemap`` read.
-RADIANCE_EXTENSIONS = (".exr", ".hdr", ".pfm", ".tif", ".tiff")
-#: Modulus images ``unwrap --single`` reads.
-MODULUS_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm")
 #: Tone-mapping operators ``tonemap`` offers (``torch_modulo.tonemap.tonemap_<op>``).
 TONEMAP_OPS = ("histogram", "reinhard", "gamma", "log", "clahe")
-#: What :func:`load_radiance` does with NaN and infinite values.
-NONFINITE = ("replace", "raise")
 #: The noise model ``simulate`` uses unless told otherwise: the preset that ``SimulatedModuloSensor()`` uses.
 DEFAULT_NOISE = "photon-counting"
 #: The ground truth ``simulate`` writes into each frame stack; ``unwrap`` scores against it when it is there.
@@ -114,7 +94,6 @@ PRELOAD = {
     "tonemap": ("torch_modulo.io", "torch_modulo.tonemap", "torch_modulo.pipeline"),
 }
 
-_CHANNELS = (None, 1, 3, "auto")
 _TONEMAP_MODULES = {
     "histogram": "HistogramToneMap",
     "reinhard": "ReinhardToneMap",
@@ -122,100 +101,6 @@ _TONEMAP_MODULES = {
     "log": "LogToneMap",
     "clahe": "ClaheToneMap",
 }
-
-
-# --------------------------------------------------------------------------------------------- radiance
-
-
-def _used_channels(image: torch.Tensor, channels: int | str | None, source: object) -> torch.Tensor:
-    """The channels the result is made of: all (None), or the first one or three."""
-    c = image.shape[0]
-    if c < 1:
-        raise ValueError(f"{source} has no channels")
-    if channels is None:
-        return image
-    return image[:3] if c >= 3 else image[:1]
-
-
-def _shaped(image: torch.Tensor, channels: int | str | None) -> torch.Tensor:
-    """Repeat grey into RGB (``channels=3``) or reduce RGB to luminance (``channels=1``)."""
-    c = image.shape[0]
-    if channels == 3 and c == 1:
-        return image.expand(3, -1, -1).clone()
-    if channels == 1 and c == 3:
-        from torch_modulo.tonemap import REC709_LUMA
-
-        weights = torch.tensor(REC709_LUMA, dtype=image.dtype).view(3, 1, 1)
-        return (image * weights).sum(0, keepdim=True)
-    return image
-
-
-def load_radiance(
-    path: str | os.PathLike[str],
-    *,
-    channels: int | str | None = "auto",
-    nonfinite: str = "replace",
-    dtype: torch.dtype = torch.float32,
-    with_counts: bool = False,
-) -> torch.Tensor | tuple[torch.Tensor, dict[str, int]]:
-    """Read a radiance file as a (C, H, W) tensor of finite values >= 0 (the policy in the module docstring).
-
-    Args:
-        path: an EXR, HDR, PFM or float TIFF file (anything :func:`torch_modulo.io.read_image` reads).
-        channels: ``"auto"`` (default): grey files give one channel, colour files their first three (alpha, the
-            other views of a multi-view file and extra layers are dropped; of two channels, the first);
-            ``3``: RGB (grey repeated); ``1``: luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (grey as is);
-            ``None``: every channel as stored.
-        nonfinite: ``"replace"`` (default) or ``"raise"``: what to do with NaN and infinite values.
-        dtype: ``torch.float32`` (default) or ``torch.float64``.
-        with_counts: also return how many values were replaced or clamped: ``{"nan", "posinf", "neginf",
-            "negative"}``.
-
-    Returns:
-        The radiance, or ``(radiance, counts)`` with ``with_counts=True``.
-
-    Raises:
-        FileNotFoundError, OSError: the file cannot be read (the message names it).
-        ValueError: NaN or infinite values with ``nonfinite="raise"``, no finite value at all, no channels, or a
-            bad argument.
-
-    Example:
-        >>> import tempfile
-        >>> from torch_modulo.io import write_image
-        >>> with tempfile.TemporaryDirectory() as folder:
-        ...     path = write_image(os.path.join(folder, "x.exr"), torch.tensor([[[1.0, float("nan")]]]))
-        ...     try:
-        ...         load_radiance(path, nonfinite="raise")
-        ...     except ValueError as error:
-        ...         print(str(error).split(";")[0].replace(folder, "DIR"))
-        DIR/x.exr holds 1 NaN or infinite value (1 NaN, 0 +Inf, 0 -Inf)
-    """
-    check_choice(channels, "channels", _CHANNELS, what="1, 3, 'auto' or None")
-    check_choice(nonfinite, "nonfinite", NONFINITE)
-    check_flag(with_counts, "with_counts")
-    image = read_image(path, dtype=dtype)
-    assert isinstance(image, torch.Tensor)
-    image = _used_channels(image, channels, path)
-    counts = {
-        "nan": int(torch.isnan(image).sum()),
-        "posinf": int(torch.isposinf(image).sum()),
-        "neginf": int(torch.isneginf(image).sum()),
-    }
-    bad = counts["nan"] + counts["posinf"] + counts["neginf"]
-    if bad:
-        what = f"({counts['nan']} NaN, {counts['posinf']} +Inf, {counts['neginf']} -Inf)"
-        if bad == image.numel():
-            raise ValueError(f"{path} holds no finite value {what}: nothing to replace them with")
-        if nonfinite == "raise":
-            raise ValueError(
-                f"{path} holds {bad} NaN or infinite value{'s' * (bad > 1)} {what}; pass nonfinite='replace' to "
-                "replace NaN and -Inf by 0 and +Inf by the largest finite value"
-            )
-        top = max(float(image[torch.isfinite(image)].max()), 0.0)
-        image = torch.nan_to_num(image, nan=0.0, posinf=top, neginf=0.0)
-    counts["negative"] = int((image < 0).sum())
-    image = _shaped(image.clamp_min(0.0), channels)
-    return (image, counts) if with_counts else image
 
 
 def _replaced(counts: Mapping[str, int]) -> list[str]:
@@ -229,84 +114,7 @@ def _replaced(counts: Mapping[str, int]) -> list[str]:
     ]
 
 
-# ----------------------------------------------------------------------------------------------- tasks
-
-
-def count_values(task: Task) -> float:
-    """What a task costs when ranks share the work: the number of values (pixels times channels) of its input
-    file, or of the image files in its input folder (from the files' headers; 0 for unreadable ones)."""
-    import OpenImageIO as oiio
-
-    source = Path(task.source)
-    files = [source] if not source.is_dir() else sorted(p for p in source.iterdir() if not p.name.startswith("."))
-    total = 0
-    for path in files:
-        if path.suffix.lower() == ".json" or not path.is_file():
-            continue
-        image = oiio.ImageInput.open(str(path))
-        if image is None:
-            oiio.geterror()  # clear the error OpenImageIO keeps for the next caller
-            continue
-        spec = image.spec()
-        total += spec.width * spec.height * spec.nchannels
-        image.close()
-    return float(total)
-
-
-def folder_tasks(
-    command: str, source: Path, out: Path, *, single: bool = False, confidence: bool = False
-) -> tuple[list[Task], str]:
-    """The tasks of folder command ``command`` (sorted by input name) and a description of the inputs it wants.
-
-    ``simulate``: every radiance file -> the frame-stack folder ``out/<name>/``; ``tonemap``: every radiance file
-    -> ``out/<name>.png``; ``unwrap``: every frame stack (folder with a ``frames.json``) -> ``out/<stack>.exr``,
-    or with ``single`` every frame stack and every modulus image outside the stacks -> ``out/<name>.exr`` (and
-    ``out/<name>.confidence.exr`` with ``confidence``). Output paths mirror the input's subfolders.
-
-    Raises:
-        FileNotFoundError: ``source`` does not exist.
-        OSError: a folder cannot be listed.
-    """
-    from torch_modulo.batch import Task, discover
-
-    def suffix_match(extensions: Sequence[str]) -> Callable[[Path], bool]:
-        # A broken link with a matching name is an input too: its job fails naming it, rather than it vanishing.
-        return lambda p: (p.is_file() or (p.is_symlink() and not p.exists())) and p.suffix.lower() in extensions
-
-    def is_stack(p: Path) -> bool:
-        return p.is_dir() and (p / "frames.json").is_file()
-
-    if command in ("simulate", "tonemap"):
-        found = discover(source, suffix_match(RADIANCE_EXTENSIONS))
-        wanted = f"radiance files ({' '.join(RADIANCE_EXTENSIONS)})"
-    elif single:
-        # A stack is one input (its frame, scored against its truth); the files inside it are not inputs.
-        image = suffix_match(MODULUS_EXTENSIONS)
-        found = discover(source, lambda p: is_stack(p) or image(p))
-        wanted = f"frame stacks or modulus images ({' '.join(MODULUS_EXTENSIONS)})"
-    else:
-        found = discover(source, is_stack)
-        wanted = "frame stacks (folders with a frames.json manifest)"
-    tasks = []
-    for name, path in found:
-        rel = Path(name)
-        if command == "simulate":
-            target = out / rel.with_suffix("")
-        elif command == "unwrap":
-            stack = not single or path.is_dir()
-            target = out / (rel.with_name(rel.name + ".exr") if stack else rel.with_suffix(".exr"))
-        else:
-            target = out / rel.with_suffix(".png")
-        targets = [target]
-        if command == "unwrap" and single and confidence:
-            targets.append(target.with_name(f"{target.stem}.confidence.exr"))
-        tasks.append(Task(name, str(path), tuple(str(t) for t in targets)))
-    return tasks, wanted
-
-
 # ------------------------------------------------------------------------------------------------ jobs
-# (This file is a little over 600 lines: the three jobs share the reading and scoring rules above; the rules
-# themselves live in torch_modulo/_scene_rules.py.)
 
 
 def scene_seed(seed: int, name: str) -> int:
@@ -330,10 +138,9 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     mosaics (1, H, W) with the pattern in the stack's metadata, and the truth stays RGB. A scene that is not RGB is
     refused; an odd height or width loses its last row or column (noted in the report).
     """
+    from torch_modulo._atomic import replace_folder
     from torch_modulo.io import write_image
-    from torch_modulo.sensors import FrameStack, SimulatedModuloSensor, write_frames
-    from torch_modulo.sensors._swap import replace_folder
-    from torch_modulo.sensors.files import stack_files
+    from torch_modulo.sensors import FrameStack, SimulatedModuloSensor, stack_files, write_frames
 
     bits = int(options["bits"])
     nonfinite = options.get("nonfinite", "replace")
@@ -493,19 +300,19 @@ def _single_frame(
         exposure = float(stack.exposure_matrix()[0, 0])
         cfa = frame_cfa(options.get("cfa"), stack.cfa, task.source, image.shape)
         return image, stack.bits, exposure, _truth(task.source), cfa
-    from torch_modulo.sensors.files import _BITS_KEYS, _EXPOSURE_KEYS, _bits_value, _first, _positive
+    from torch_modulo.sensors import frame_bits, frame_exposure
 
     image, meta = read_image(task.source, with_metadata=True)
     where = f"the metadata of {task.source}"  # read as FileSensor reads a frame's: checked, never coerced
     bits = options["bits"]
     if bits is None:
-        if _first(meta, _BITS_KEYS) is None:
+        bits = frame_bits(meta, where)
+        if bits is None:
             raise ValueError(f"no bit depth in the metadata of {task.source}: pass --bits")
-        bits = _bits_value(_first(meta, _BITS_KEYS), where)
     exposure = options["exposure"]
     if exposure is None:
-        stored = _first(meta, _EXPOSURE_KEYS)
-        exposure = 1.0 if stored is None else _positive(stored, "exposure", where)
+        stored = frame_exposure(meta, where)
+        exposure = 1.0 if stored is None else stored
     cfa = frame_cfa(options.get("cfa"), meta.get("cfa"), task.source, image.shape)
     return image, int(bits), float(exposure), None, cfa
 
@@ -548,12 +355,12 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
     info: dict[str, Any] = {}
     counts_truth = matching_truth(truth, counts.shape, cfa)
     if counts_truth is not None:
-        scored = (counts, image, counts_truth)
+        scored = [counts, image, counts_truth]
         if cfa is not None:  # at the photosites, each colour plane with its own global offset (as each channel)
             from torch_modulo.cfa import split_planes
 
-            scored = tuple(split_planes(x) for x in scored)
-        info["accuracy"] = count_accuracy(*scored, exposure, bits)
+            scored = [split_planes(x) for x in scored]
+        info["accuracy"] = count_accuracy(scored[0], scored[1], scored[2], exposure, bits)
         if cfa is not None and truth is not None and radiance.shape == truth.shape and radiance.shape[0] == 3:
             peak = max(float(truth.max()), 1.0 / exposure)
             info["accuracy"]["colour_psnr_db"] = float(psnr(radiance, truth, peak=peak)[0])
@@ -653,3 +460,20 @@ JOBS: dict[str, Callable[[Task, Mapping[str, Any]], dict[str, Any]]] = {
     "unwrap": unwrap_job,
     "tonemap": tonemap_job,
 }
+
+
+#: Names that moved to :mod:`torch_modulo.folders` with the command line's listing of a folder's tasks.
+_MOVED = ("MODULUS_EXTENSIONS", "count_values", "folder_tasks")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MOVED:
+        warnings.warn(
+            f"torch_modulo.pipeline.{name} is deprecated; use torch_modulo.folders.{name}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        from torch_modulo import folders
+
+        return getattr(folders, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,9 +1,9 @@
-"""Tests of torch_modulo/batch/tasks.py: tasks, finding inputs (symbolic links included), checking the folders."""
+"""Tests of torch_modulo/batch/tasks.py: finding inputs (symbolic links included), checking the folders. The Task
+itself is tested in tests/test_task.py."""
 
 from __future__ import annotations
 
 import os
-import pickle
 from pathlib import Path
 
 import pytest
@@ -11,7 +11,7 @@ from fakes import make_inputs as _make_inputs
 from fakes import names as _names
 from fakes import run as _run
 
-from torch_modulo.batch import BatchError, Task, check_folders, discover
+from torch_modulo.batch import BatchError, check_folders, discover
 
 
 class TestDiscover:
@@ -106,15 +106,3 @@ class TestCheckFolders:
         (tmp_path / "out").write_text("x")
         with pytest.raises(BatchError, match="not a folder"):
             check_folders(tmp_path / "in", tmp_path / "out")
-
-
-class TestTask:
-    def test_tasks_pickle(self) -> None:
-        task = Task("a.exr", "/in/a.exr", ("/out/a.png",))
-        assert pickle.loads(pickle.dumps(task)) == task
-
-    def test_bad_tasks(self) -> None:
-        with pytest.raises(ValueError, match="Task 'x' must have at least one output"):
-            Task("x", "a", ())
-        with pytest.raises(ValueError, match="Task.name must be a non-empty string; got ''"):
-            Task("", "a", ("b",))

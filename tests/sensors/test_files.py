@@ -19,6 +19,9 @@ from torch_modulo.sensors import (
     RawFormat,
     SimulatedIntensitySensor,
     SimulatedModuloSensor,
+    frame_bits,
+    frame_exposure,
+    stack_files,
     write_frames,
 )
 
@@ -489,3 +492,33 @@ def test_raw_format_sizes_must_be_integers() -> None:
         RawFormat(width="4", height=4, bits=12)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="RawFormat.sample_bytes must be 1, 2 or 4"):
         RawFormat(width=4, height=4, bits=8, sample_bytes=True)  # type: ignore[arg-type]
+
+
+class TestFrameMetadata:
+    def test_lookups_find_the_first_key_present(self) -> None:
+        assert frame_exposure({"exposure": 2, "ExposureTime": 4}, "x") == 2.0
+        assert frame_exposure({"exposure": None, "exposure_time": 0.5}, "x") == 0.5
+        assert frame_bits({"bits": 12.0}, "x") == 12 and frame_bits({"bit_depth": 10}, "x") == 10
+        assert frame_exposure({}, "x") is None and frame_bits({"bits": None}, "x") is None
+
+    @pytest.mark.parametrize("value", [0, -2, float("nan"), float("inf"), "fast", True])
+    def test_a_bad_exposure_names_its_source(self, value: object) -> None:
+        with pytest.raises(ValueError, match="exposure from the metadata of a.png"):
+            frame_exposure({"exposure": value}, "the metadata of a.png")
+
+    @pytest.mark.parametrize("value", [8.7, True, 0, 54, "8"])
+    def test_a_bad_bit_depth_names_its_source(self, value: object) -> None:
+        with pytest.raises(ValueError, match="bits from a.json"):
+            frame_bits({"bits": value}, "a.json")
+
+    def test_file_sensor_reads_what_the_lookups_find(self, tmp_path: Path) -> None:
+        write_image(tmp_path / "f.png", torch.tensor([[[3.0, 200.0]]]), {"bit_depth": 8, "ExposureTime": 4})
+        stack = FileSensor(tmp_path).read()
+        assert (stack.bits, stack.exposures.tolist()) == (8, [4.0])
+
+    def test_stack_files_are_the_manifest_and_its_frames(self, tmp_path: Path) -> None:
+        stack = FrameStack(torch.zeros(2, 1, 2, 2), [1.0, 4.0], bits=8)
+        write_frames(stack, tmp_path / "s")
+        (tmp_path / "s" / "notes.txt").write_text("mine")
+        assert stack_files(tmp_path / "s") == {"frames.json", "frame_b000_m00.exr", "frame_b000_m01.exr"}
+        assert stack_files(tmp_path / "missing") == {"frames.json"}

@@ -10,9 +10,9 @@ What it guarantees
       without running.
     - **Each input once.** :func:`discover` follows symbolic links but never enters a folder twice, so a link
       loop or a second link to the same file cannot repeat an input.
-    - **Atomic outputs.** Jobs write files with :func:`torch_modulo.io.write_image` (temporary file, then
-      ``os.replace``) and folders in a hidden temporary folder renamed into place (:func:`atomic_output_dir`, or
-      for frame stacks ``write_frames``' swap, which keeps the folder's other entries), so a crash never leaves a
+    - **Atomic outputs.** Jobs write files with :func:`torch_modulo.io.write_image` (a temporary file renamed
+      into place) and folders in a hidden temporary folder renamed into place (:func:`atomic_output_dir`, or for
+      frame stacks ``write_frames``' swap, which keeps the folder's other entries), so a crash never leaves a
       half-written output under its final name. What a killed run leaves behind (hidden temporaries) is removed
       by the next run.
     - **Resume.** After a task succeeds the engine writes a small *done marker* under
@@ -31,7 +31,8 @@ What it guarantees
       Ctrl-C abandons them), completed outputs are kept and the report says what was done (exit code 130).
 
 The package's rooms: :mod:`~torch_modulo.batch.tasks` (tasks, discovery, folder checks),
-:mod:`~torch_modulo.batch.atomic` (atomic writes, clean-up), :mod:`~torch_modulo.batch.markers` (resume),
+:mod:`~torch_modulo.batch.atomic` (the atomic writes and clean-up of :mod:`torch_modulo._atomic`, re-exported),
+:mod:`~torch_modulo.batch.markers` (resume),
 :mod:`~torch_modulo.batch.report`, :mod:`~torch_modulo.batch.engines` (inline, process pool, Ray; Ctrl-C),
 :mod:`~torch_modulo.batch.distributed` (torchrun: shares and report parts) and :mod:`~torch_modulo.batch.run`
 (:func:`run_batch`: plan, execute, finish).
@@ -39,7 +40,7 @@ The package's rooms: :mod:`~torch_modulo.batch.tasks` (tasks, discovery, folder 
 
 from __future__ import annotations
 
-from torch_modulo.batch.atomic import atomic_output_dir, remove_stale_temporaries, write_json
+from torch_modulo._atomic import atomic_output_dir, remove_stale_temporaries, write_json
 from torch_modulo.batch.distributed import DistributedEnv, balance, distributed_env, shard
 from torch_modulo.batch.engines import ENGINES, default_workers, require_ray
 from torch_modulo.batch.markers import MARKER_FOLDER

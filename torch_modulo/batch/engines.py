@@ -28,7 +28,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from torch_modulo.batch.atomic import final_names, free_space_note
+from torch_modulo._atomic import final_names, free_space_note
 from torch_modulo.batch.tasks import BatchError, JobFunction, Task
 
 __all__ = [
@@ -231,7 +231,7 @@ def _pool_context(preload: Sequence[str]) -> multiprocessing.context.BaseContext
         # itself (python -m ...): each worker runs it again as __mp_main__, which warns if it was imported before.
         main = getattr(getattr(sys.modules.get("__main__"), "__spec__", None), "name", None)
         modules = ["torch", "torch_modulo.batch", *preload]
-        ctx.set_forkserver_preload([m for m in dict.fromkeys(modules) if m != main])  # type: ignore[attr-defined]
+        ctx.set_forkserver_preload([m for m in dict.fromkeys(modules) if m != main])
         # Start the fork server now, ignoring Ctrl-C: it imports the modules above (seconds), and a Ctrl-C then
         # would kill it and break the pool; the workers it forks inherit the setting.
         from multiprocessing import forkserver

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from torch_modulo.batch.atomic import write_json
+from torch_modulo._atomic import write_json
 from torch_modulo.batch.tasks import Task
 
 __all__ = ["MARKER_FOLDER", "fingerprint", "is_complete", "marker_path", "source_state", "write_marker"]
@@ -31,7 +31,7 @@ def source_state(path: Path) -> Any:
     stat = path.stat()
     if not path.is_dir():
         return [stat.st_size, stat.st_mtime_ns]
-    state = []
+    state: list[list[Any]] = []
     for folder, dirs, files in os.walk(path):
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         for name in sorted(files):

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from torch_modulo._atomic import remove_stale_temporaries, write_json
 from torch_modulo._checks import check_int
-from torch_modulo.batch.atomic import remove_stale_temporaries, write_json
 from torch_modulo.batch.distributed import (
     DistributedEnv,
     agree,

@@ -1,4 +1,5 @@
-"""What a batch works on: :class:`Task` (one input and its outputs), finding inputs, and checking the folders.
+"""What a batch works on: :class:`Task` (one input and its outputs, from :mod:`torch_modulo._task`), finding inputs,
+and checking the folders.
 
 :func:`discover` lists every input of a folder once: hidden entries are skipped, and symbolic links are followed
 without ever entering a folder twice, so a link loop or a second link to the same file cannot repeat an input.
@@ -8,43 +9,16 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from torch_modulo._task import Task
 
 __all__ = ["BatchError", "JobFunction", "Task", "check_folders", "discover", "inside"]
 
 
 class BatchError(Exception):
     """A batch cannot start (bad folders, bad distributed environment, missing engine); the message says why."""
-
-
-@dataclass(frozen=True)
-class Task:
-    """One unit of work: an input and the outputs it produces.
-
-    Args:
-        name: the input's path relative to the input folder, with ``/`` separators (``"sub/scene.exr"``); the
-            key in the report and in the done markers.
-        source: the input file or folder (absolute path as a string, so tasks pickle cheaply).
-        outputs: the paths (files or folders) the job creates, absolute.
-
-    Example:
-        >>> Task("a.exr", "/data/in/a.exr", ("/data/out/a.png",)).name
-        'a.exr'
-    """
-
-    name: str
-    source: str
-    outputs: tuple[str, ...]
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"Task.name must be a non-empty string; got {self.name!r}")
-        if not self.outputs:
-            raise ValueError(f"Task {self.name!r} must have at least one output")
-        object.__setattr__(self, "source", str(self.source))
-        object.__setattr__(self, "outputs", tuple(str(p) for p in self.outputs))
 
 
 #: ``job(task, options) -> info``: a top-level (picklable) function that reads ``task.source`` and writes every

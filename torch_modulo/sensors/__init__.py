@@ -9,7 +9,16 @@ The same code unwraps frames whatever made them::
 
 from __future__ import annotations
 
-from torch_modulo.sensors.files import IMAGE_EXTENSIONS, MANIFEST, FileSensor, RawFormat, write_frames
+from torch_modulo.sensors.files import (
+    IMAGE_EXTENSIONS,
+    MANIFEST,
+    FileSensor,
+    RawFormat,
+    frame_bits,
+    frame_exposure,
+    stack_files,
+    write_frames,
+)
 from torch_modulo.sensors.frames import KINDS, FrameStack
 from torch_modulo.sensors.simulated import (
     NoiseModel,
@@ -30,6 +39,9 @@ __all__ = [
     "SimulatedIntensitySensor",
     "SimulatedModuloSensor",
     "fixed_pattern_gain",
+    "frame_bits",
+    "frame_exposure",
     "simulate_capture",
+    "stack_files",
     "write_frames",
 ]

@@ -45,10 +45,10 @@ from typing import Any, TypeVar
 import numpy as np
 import torch
 
+from torch_modulo._atomic import replace_folder
 from torch_modulo._checks import check_bits, check_choice, check_int, check_modulus, check_real
 from torch_modulo.cfa import check_cfa
 from torch_modulo.io import read_image, write_image
-from torch_modulo.sensors._swap import replace_folder
 from torch_modulo.sensors.frames import KINDS, FrameStack
 
 __all__ = [
@@ -56,6 +56,9 @@ __all__ = [
     "MANIFEST",
     "FileSensor",
     "RawFormat",
+    "frame_bits",
+    "frame_exposure",
+    "stack_files",
     "write_frames",
 ]
 
@@ -208,6 +211,51 @@ def _bits_value(value: Any, source: object) -> int:
         return check_bits(value, torch.float64)
     except ValueError as exc:
         raise ValueError(f"bits from {source}: {exc}") from None
+
+
+def frame_exposure(metadata: Mapping[str, Any], source: object) -> float | None:
+    """The exposure a frame's metadata or sidecar records, checked as :class:`FileSensor` checks it.
+
+    Args:
+        metadata: the frame's metadata (:func:`torch_modulo.io.read_metadata`) or its sidecar's JSON object.
+        source: where ``metadata`` comes from, for the error message (``"the metadata of a.png"``).
+
+    Returns:
+        The value of ``"exposure"``, ``"exposure_time"`` or ``"ExposureTime"`` (the first one present), or None
+        when ``metadata`` records none.
+
+    Raises:
+        ValueError: the value is not a positive finite number; the message names ``source``.
+
+    Example:
+        >>> frame_exposure({"ExposureTime": 4}, "a.png"), frame_exposure({}, "a.png")
+        (4.0, None)
+    """
+    value = _first(metadata, _EXPOSURE_KEYS)
+    return None if value is None else _positive(value, "exposure", source)
+
+
+def frame_bits(metadata: Mapping[str, Any], source: object) -> int | None:
+    """The bit depth a frame's metadata or sidecar records, checked as :class:`FileSensor` checks it.
+
+    Args:
+        metadata: the frame's metadata (:func:`torch_modulo.io.read_metadata`) or its sidecar's JSON object.
+        source: where ``metadata`` comes from, for the error message.
+
+    Returns:
+        The value of ``"bits"`` or ``"bit_depth"`` (the first one present; a whole float such as ``8.0`` counts),
+        or None when ``metadata`` records none.
+
+    Raises:
+        ValueError: the value is not a whole number, is below 1, or has more bits than float64 holds exactly; the
+            message names ``source``.
+
+    Example:
+        >>> frame_bits({"bit_depth": 12.0}, "a.png"), frame_bits({}, "a.png")
+        (12, None)
+    """
+    value = _first(metadata, _BITS_KEYS)
+    return None if value is None else _bits_value(value, source)
 
 
 def _inside(manifest: Path, name: str) -> Path:
@@ -400,8 +448,7 @@ class FileSensor:
             raise FileNotFoundError(errno.ENOENT, "frame file not found", str(path))
         if self.raw is not None and path.suffix.lower() in self.raw.extensions:
             return self.raw.read(path), {"bits": self.raw.bits}
-        image, meta = read_image(path, with_metadata=True, dtype=torch.float64)
-        return image, meta  # type: ignore[return-value]
+        return read_image(path, with_metadata=True, dtype=torch.float64)
 
     def read(self) -> FrameStack:
         """Read every frame and return them as one :class:`FrameStack` (validated)."""
@@ -418,30 +465,29 @@ class FileSensor:
                     f"frame {frame.path} has shape {tuple(image.shape)} (C, H, W) but {self.frames[0].path} has "
                     f"{tuple(images[0].shape)}: all frames must have the same size"
                 )
+            own = f"the metadata of {frame.path}"
             # exposure
             if self.exposures is not None:
-                tau = self.exposures[i]
+                tau: float | None = self.exposures[i]
             elif frame.exposure is not None:
                 tau = frame.exposure
-            elif _first(sidecar, _EXPOSURE_KEYS) is not None:
-                tau = _positive(_first(sidecar, _EXPOSURE_KEYS), "exposure", sidecar_path)
-            elif _first(embedded, _EXPOSURE_KEYS) is not None:
-                tau = _positive(_first(embedded, _EXPOSURE_KEYS), "exposure", f"the metadata of {frame.path}")
             else:
+                tau = frame_exposure(sidecar, sidecar_path)
+                tau = frame_exposure(embedded, own) if tau is None else tau
+            if tau is None:
                 raise ValueError(
                     f"no exposure for frame {frame.path}: give exposures=[...], list it in {MANIFEST}, write a "
                     f'sidecar {frame.path.name}.json with "exposure", or store "exposure" in the file\'s metadata'
                 )
             # bit depth
             if self.bits is not None:
-                bits = self.bits
+                bits: int | None = self.bits
             elif frame.bits is not None:
                 bits = frame.bits
-            elif _first(sidecar, _BITS_KEYS) is not None:
-                bits = _bits_value(_first(sidecar, _BITS_KEYS), sidecar_path)
-            elif _first(embedded, _BITS_KEYS) is not None:
-                bits = _bits_value(_first(embedded, _BITS_KEYS), f"the metadata of {frame.path}")
             else:
+                bits = frame_bits(sidecar, sidecar_path)
+                bits = frame_bits(embedded, own) if bits is None else bits
+            if bits is None:
                 raise ValueError(
                     f'no bit depth for frame {frame.path}: give bits=..., put "bits" in {MANIFEST} or a sidecar '
                     f'{frame.path.name}.json, or store "bits" in the file\'s metadata'

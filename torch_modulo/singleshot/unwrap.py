@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 import torch
@@ -135,6 +135,63 @@ def _solve_mosaic(
     if info.confidence is not None:
         info.confidence = mosaic(info.confidence, cfa).reshape(modulus.shape)
     return mosaic(out, cfa).reshape(modulus.shape), info
+
+
+@overload
+def unwrap_single(
+    modulus: torch.Tensor,
+    bits: int = ...,
+    *,
+    method: str = ...,
+    neighborhood: int = ...,
+    a1: float = ...,
+    a2: float = ...,
+    x0: float | None = ...,
+    sigma: int = ...,
+    max_iter: int = ...,
+    workers: int | None = ...,
+    return_info: Literal[False] = ...,
+    cfa: str | None = ...,
+    **options: Any,
+) -> torch.Tensor: ...
+
+
+@overload
+def unwrap_single(
+    modulus: torch.Tensor,
+    bits: int = ...,
+    *,
+    method: str = ...,
+    neighborhood: int = ...,
+    a1: float = ...,
+    a2: float = ...,
+    x0: float | None = ...,
+    sigma: int = ...,
+    max_iter: int = ...,
+    workers: int | None = ...,
+    return_info: Literal[True],
+    cfa: str | None = ...,
+    **options: Any,
+) -> tuple[torch.Tensor, SingleShotInfo]: ...
+
+
+@overload
+def unwrap_single(
+    modulus: torch.Tensor,
+    bits: int = ...,
+    *,
+    method: str = ...,
+    neighborhood: int = ...,
+    a1: float = ...,
+    a2: float = ...,
+    x0: float | None = ...,
+    sigma: int = ...,
+    max_iter: int = ...,
+    workers: int | None = ...,
+    return_info: bool = ...,
+    cfa: str | None = ...,
+    **options: Any,
+) -> torch.Tensor | tuple[torch.Tensor, SingleShotInfo]: ...
 
 
 def unwrap_single(
@@ -305,5 +362,4 @@ class SingleShotUnwrap(nn.Module):
             cfa=self.cfa,
             **dict(self.spec.options),
         )
-        assert isinstance(out, torch.Tensor)  # no info without return_info
         return out

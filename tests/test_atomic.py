@@ -1,30 +1,38 @@
-"""Edge cases of the atomic-write layer (torch_modulo/batch/atomic.py, torch_modulo/sensors/_swap.py and
-write_image's temporary file): a kill between a folder swap's two renames, errors that name no file, disk-full notes
-on errors that are not about the disk, clean-up that fails on a read-only folder, names near NAME_MAX, and
-temporaries of temporaries. Nothing here needs root: read-only and full file systems are played by monkeypatching."""
+"""Tests of torch_modulo/_atomic.py: atomic files, JSON and folders, folder swaps, errors that name final paths,
+temporary names near NAME_MAX, temporaries of temporaries, and the clean-up of what a killed writer left behind
+(a kill between a folder swap's two renames included). Nothing here needs root: read-only and full file systems
+are played by monkeypatching."""
 
 from __future__ import annotations
 
 import errno
+import json
 import os
 import subprocess
 import sys
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
-from fakes import make_inputs as _make_inputs
-from fakes import names as _names
-from fakes import run as _run
 
+from torch_modulo import _atomic
 from torch_modulo import io as tmio
-from torch_modulo.batch import Task, atomic, atomic_output_dir, remove_stale_temporaries, write_json
-from torch_modulo.batch.atomic import final_names, free_space_note, write_bytes
-from torch_modulo.batch.engines import _error_text
-from torch_modulo.io import read_image, temporary_stem, write_image
-from torch_modulo.sensors._swap import replace_folder
+from torch_modulo._atomic import (
+    atomic_file,
+    atomic_output_dir,
+    final_names,
+    free_space_note,
+    remove_stale_temporaries,
+    replace_folder,
+    temporary_file,
+    temporary_stem,
+    write_bytes,
+    write_json,
+)
+from torch_modulo.io import read_image, write_image
 
 NAME_MAX = 255
 # The widest tag a temporary name can carry: a 10-digit process id and 8 hex digits.
@@ -60,7 +68,142 @@ def _stack(folder: Path, **files: str) -> None:
         (folder / name.replace("_", ".", 1)).write_text(text)
 
 
-# ------------------------------------------------------------------------------------------------ finding 4
+def _read_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Unlinking fails as on a read-only file system (EROFS, even for a file that is not there)."""
+
+    def unlink(self: Path, missing_ok: bool = False) -> None:
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+
+    monkeypatch.setattr(Path, "unlink", unlink)
+
+
+# ------------------------------------------------------------------------------------------------- writes
+
+
+class TestAtomicWrites:
+    def test_atomic_output_dir_replaces_on_success(self, tmp_path: Path) -> None:
+        final = tmp_path / "scene"
+        final.mkdir()
+        (final / "old.txt").write_text("old")
+        with atomic_output_dir(final) as tmp:
+            (tmp / "new.txt").write_text("new")
+            assert not (final / "new.txt").exists()  # nothing visible under the final name before the end
+        assert sorted(p.name for p in final.iterdir()) == ["new.txt"]
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+    def test_atomic_output_dir_keeps_the_old_folder_on_error(self, tmp_path: Path) -> None:
+        final = tmp_path / "scene"
+        final.mkdir()
+        (final / "old.txt").write_text("old")
+        with pytest.raises(RuntimeError, match="boom"), atomic_output_dir(final) as tmp:
+            (tmp / "half.txt").write_text("half")
+            raise RuntimeError("boom")
+        assert sorted(p.name for p in final.iterdir()) == ["old.txt"]
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+    def test_write_json_leaves_no_temporary(self, tmp_path: Path) -> None:
+        write_json(tmp_path / "a" / "r.json", {"x": [1, 2]})
+        assert json.loads((tmp_path / "a" / "r.json").read_text()) == {"x": [1, 2]}
+        assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["r.json"]
+
+    @pytest.mark.parametrize(
+        ("method", "write"),
+        [("write_text", lambda p: write_json(p, {"x": 1})), ("write_bytes", lambda p: write_bytes(p, b"x"))],
+    )
+    def test_writes_on_a_full_disk_name_the_final_path(
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, method: str, write: Callable[[Path], Path]
+    ) -> None:
+        def full(self: Path, *args: object, **kwargs: object) -> int:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+
+        monkeypatch.setattr(Path, method, full)
+        with pytest.raises(OSError) as info:
+            write(tmp_path / "r.json")
+        assert info.value.errno == errno.ENOSPC
+        assert str(info.value) == f"[Errno 28] No space left on device: '{tmp_path / 'r.json'}'"
+        assert os.listdir(tmp_path) == []
+
+    def test_atomic_output_dir_errors_name_the_final_folder(self, tmp_path: Path) -> None:
+        final = tmp_path / "scene"
+        with pytest.raises(OSError) as info, atomic_output_dir(final) as tmp:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp / "frame.exr"))
+        assert str(info.value) == f"[Errno 28] No space left on device: '{final / 'frame.exr'}'"
+        with (
+            pytest.raises(OSError, match=f"cannot write {final}/frame.exr: disk full") as info,
+            atomic_output_dir(final) as tmp,
+        ):
+            raise OSError(f"cannot write {tmp}/frame.exr: disk full")
+        assert os.listdir(tmp_path) == []
+
+    def test_atomic_file_renames_into_place_or_leaves_nothing(self, tmp_path: Path) -> None:
+        path = tmp_path / "a.exr"
+        path.write_text("old")
+        with atomic_file(path, keep_suffix=True) as tmp:
+            assert tmp.parent == tmp_path and tmp.name.startswith(".a.") and tmp.name.endswith(".tmp.exr")
+            tmp.write_text("new")
+            assert path.read_text() == "old"  # nothing under the final name before the end
+        assert _listing(tmp_path) == ["a.exr"] and path.read_text() == "new"
+        with pytest.raises(RuntimeError, match="boom"), atomic_file(path) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("boom")
+        assert _listing(tmp_path) == ["a.exr"] and path.read_text() == "new"
+
+    def test_atomic_file_errors_name_the_final_path_and_keep_their_type(self, tmp_path: Path) -> None:
+        path = tmp_path / "a.png"
+        with pytest.raises(PermissionError) as info, atomic_file(path, keep_suffix=True) as tmp:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(tmp))
+        assert info.value.filename == str(path) and isinstance(info.value.__cause__, PermissionError)
+        with pytest.raises(OSError) as info, atomic_file(path, keep_suffix=True) as tmp:
+            raise OSError(f'cannot write {path}: Could not open "{tmp}"')
+        assert str(info.value) == f'cannot write {path}: Could not open "{path}"'
+        unrelated = OSError(errno.EIO, os.strerror(errno.EIO), "/elsewhere/b.png")
+        with pytest.raises(OSError) as info, atomic_file(path):
+            raise unrelated
+        assert info.value is unrelated  # an error that does not name the temporary file is raised as it is
+        assert _listing(tmp_path) == []
+
+
+class TestFinalNames:
+    def test_final_names(self) -> None:
+        text = 'Failed to write "/out/.a.123-0f3c9a1b.tmp.exr"; /out/.s.tmp-123-ab/frames.json, /m/.x.exr.json.1-ff.tmp'
+        assert final_names(text) == 'Failed to write "/out/a.exr"; /out/s/frames.json, /m/x.exr.json'
+        assert final_names("/out/.hidden/a.exr and /out/.b.exr") == "/out/.hidden/a.exr and /out/.b.exr"
+
+    def test_final_names_reads_names_with_spaces(self) -> None:
+        text = (
+            "[Errno 30] Read-only file system: '/out/.my scene.25895-4d363d48.tmp.png'; "
+            "see /out/.my stack.tmp-1-ab/frame 1.exr and ..s 6.tmp-1-ab.tmp-1-cd/frames.json"
+        )
+        assert final_names(text) == (
+            "[Errno 30] Read-only file system: '/out/my scene.png'; see /out/my stack/frame 1.exr and s 6/frames.json"
+        )
+        assert final_names("'.x.1-ab.tmp.exr' and /out/.hidden dir/a.exr") == "'x.exr' and /out/.hidden dir/a.exr"
+
+
+# ------------------------------------------------------------------------------------------------ clean-up
+
+
+class TestStaleTemporaries:
+    def test_remove_stale_temporaries_only_touches_the_given_outputs(self, tmp_path: Path) -> None:
+        dead = _dead_pid()
+        (tmp_path / f".a.png.old-{dead}-ab").mkdir()
+        (tmp_path / f".a.{dead}-ab.tmp.png").write_text("x")
+        (tmp_path / f".b.{dead}-ab.tmp.png").write_text("x")
+        removed = remove_stale_temporaries([tmp_path / "a.png", tmp_path / "missing" / "c.png"])
+        assert [p.name for p in removed] == sorted([f".a.png.old-{dead}-ab", f".a.{dead}-ab.tmp.png"])
+        assert sorted(p.name for p in tmp_path.iterdir()) == [f".b.{dead}-ab.tmp.png"]
+
+    def test_a_folder_swapped_through_a_link_is_restored_beside_its_target(self, tmp_path: Path) -> None:
+        elsewhere, out = tmp_path / "elsewhere", tmp_path / "out"
+        old = elsewhere / ".scene.old-999999999-0f3c9a1b"  # a writer (no such process) killed between the renames
+        old.mkdir(parents=True)
+        (old / "notes.txt").write_text("the user's")
+        (elsewhere / ".scene.tmp-999999999-0f3c9a1b").mkdir()
+        out.mkdir()
+        (out / "scene").symlink_to(elsewhere / "scene")  # dangling until the old folder is back
+        removed = remove_stale_temporaries([out / "scene"])
+        assert [p.name for p in removed] == [".scene.tmp-999999999-0f3c9a1b"]
+        assert (out / "scene" / "notes.txt").read_text() == "the user's"
 
 
 class TestKillBetweenTheRenames:
@@ -96,7 +239,7 @@ class TestKillBetweenTheRenames:
         def refused(source: Any, target: Any) -> None:
             raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(source))
 
-        monkeypatch.setattr(atomic.os, "rename", refused)
+        monkeypatch.setattr(_atomic.os, "rename", refused)
         assert remove_stale_temporaries([tmp_path / "a"]) == []
         assert _listing(tmp_path) == names  # a later run tries again
         monkeypatch.undo()
@@ -124,8 +267,7 @@ class TestKillBetweenTheRenames:
         _stack(final, frames_json="old stack", notes_txt="my notes")
         _killed(
             """
-            import torch_modulo.batch.atomic as atomic
-            import torch_modulo.sensors._swap as swap
+            import torch_modulo._atomic as atomic
             real, calls = os.replace, []
             def replace(source, target):
                 calls.append(source)
@@ -135,7 +277,7 @@ class TestKillBetweenTheRenames:
             os.replace = replace
             final = Path(sys.argv[1])
             if sys.argv[2] == "replace_folder":
-                swap.replace_folder(final, lambda tmp: (tmp / "frames.json").write_text("new stack"), {"frames.json"})
+                atomic.replace_folder(final, lambda tmp: (tmp / "frames.json").write_text("new stack"), {"frames.json"})
             else:
                 with atomic.atomic_output_dir(final) as tmp:
                     (tmp / "frames.json").write_text("new stack")
@@ -148,20 +290,6 @@ class TestKillBetweenTheRenames:
         assert _listing(tmp_path) == ["a"]
         assert (final / "frames.json").read_text() == "old stack"
         assert (final / "notes.txt").read_text() == "my notes"
-
-    def test_a_rerun_of_the_batch_restores_the_old_folder(self, tmp_path: Path) -> None:
-        tasks = _make_inputs(tmp_path, {"a": "alpha"})
-        out = tmp_path / "out"
-        dead = _dead_pid()
-        _stack(out / f".a.old-{dead}-0f3c9a1b", notes_txt="my notes")
-        _stack(out / f".a.tmp-{dead}-0f3c9a1b", notes_txt="my notes")
-        messages: list[str] = []
-        report = _run(tasks, tmp_path, log=messages.append, job=_folder_job)
-        assert _names(report.done) == ["a"]
-        assert (out / "a" / "notes.txt").read_text() == "my notes"
-        assert (out / "a" / "result.txt").read_text() == "ALPHA"
-        assert not [name for name in os.listdir(out) if name.startswith(".a.")]
-        assert any("removed 1 temporary" in m for m in messages)
 
     @pytest.mark.parametrize("writer", ["replace_folder", "atomic_output_dir"])
     def test_a_failed_rollback_keeps_both_folders_for_the_clean_up(
@@ -188,18 +316,12 @@ class TestKillBetweenTheRenames:
         assert ".tmp-" not in str(info.value) and ".old-" not in str(info.value)
         monkeypatch.undo()
         assert len(_listing(tmp_path)) == 2 and not final.exists()  # nothing deleted
-        monkeypatch.setattr(atomic, "_running", lambda pid: False)  # as after this process ends
+        monkeypatch.setattr(_atomic, "_running", lambda pid: False)  # as after this process ends
         remove_stale_temporaries([final])
         assert _listing(tmp_path) == ["a"] and (final / "notes.txt").read_text() == "my notes"
 
 
-def _folder_job(task: Task, options: dict[str, Any]) -> None:
-    """Writes a folder output (through replace_folder, as simulate does) holding the upper-cased input."""
-    text = Path(task.source).read_text()
-    replace_folder(Path(task.outputs[0]), lambda tmp: (tmp / "result.txt").write_text(text.upper()), {"result.txt"})
-
-
-# ------------------------------------------------------------------------------------------------ finding 7
+# --------------------------------------------------------------------------------------------- error names
 
 
 class TestFullDiskErrors:
@@ -230,7 +352,7 @@ class TestFullDiskErrors:
         class Stat:
             f_bavail, f_frsize, f_blocks, f_bfree = 1, 4096, 100, 1
 
-        monkeypatch.setattr(atomic.os, "statvfs", lambda folder: Stat())
+        monkeypatch.setattr(_atomic.os, "statvfs", lambda folder: Stat())
 
     @pytest.mark.parametrize(
         ("error", "noted"),
@@ -251,25 +373,6 @@ class TestFullDiskErrors:
     ) -> None:
         note = free_space_note(error, Path("/out"))
         assert note == ("; No space left on device (4096 bytes free in /out)" if noted else "")
-
-    def test_a_corrupt_input_is_not_blamed_on_a_full_disk(self, full: None) -> None:
-        task = Task("corrupt.exr", "/in/corrupt.exr", ("/out/corrupt",))
-        error = OSError("cannot read image /in/corrupt.exr: EXR Error (/in/corrupt.exr): Unable to read magic")
-        assert _error_text(error, task) == f"OSError: {error}"
-        write_error = OSError("cannot write /out/corrupt/frame.exr: Could not open")
-        assert _error_text(write_error, task).endswith("; No space left on device (4096 bytes free in /out)")
-
-
-# ------------------------------------------------------------------------------------------------ finding 8
-
-
-def _read_only(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Unlinking fails as on a read-only file system (EROFS, even for a file that is not there)."""
-
-    def unlink(self: Path, missing_ok: bool = False) -> None:
-        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
-
-    monkeypatch.setattr(Path, "unlink", unlink)
 
 
 class TestReadOnlyFolder:
@@ -309,7 +412,7 @@ class TestReadOnlyFolder:
         def refused(source: Any, target: Any) -> None:
             raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(source))
 
-        monkeypatch.setattr(tmio.os, "replace", refused)
+        monkeypatch.setattr(os, "replace", refused)
         path = tmp_path / "a.exr"
         with pytest.raises(PermissionError) as info:
             write_image(path, torch.ones(1, 2, 2))
@@ -317,32 +420,8 @@ class TestReadOnlyFolder:
         monkeypatch.undo()
         assert _listing(tmp_path) == []
 
-    def test_final_names_reads_names_with_spaces(self) -> None:
-        text = (
-            "[Errno 30] Read-only file system: '/out/.my scene.25895-4d363d48.tmp.png'; "
-            "see /out/.my stack.tmp-1-ab/frame 1.exr and ..s 6.tmp-1-ab.tmp-1-cd/frames.json"
-        )
-        assert final_names(text) == (
-            "[Errno 30] Read-only file system: '/out/my scene.png'; see /out/my stack/frame 1.exr and s 6/frames.json"
-        )
-        assert final_names("'.x.1-ab.tmp.exr' and /out/.hidden dir/a.exr") == "'x.exr' and /out/.hidden dir/a.exr"
 
-    def test_a_batch_names_final_paths_with_spaces(self, tmp_path: Path) -> None:
-        tasks = _make_inputs(tmp_path, {"my scene.exr": "x"})
-        report = _run(tasks, tmp_path, job=_image_job)
-        assert _names(report.failed) == ["my scene.exr"]
-        error = report.failed[0]["error"]
-        assert error == f"OSError: [Errno 30] Read-only file system: '{tmp_path / 'out' / 'my scene.png'}'", error
-
-
-def _image_job(task: Task, options: dict[str, Any]) -> None:
-    """Writes an image whose write fails with the temporary's name in the message."""
-    path = Path(task.outputs[0]).with_suffix(".png")
-    tmp = tmio._temporary_sibling(path)
-    raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(tmp))
-
-
-# ------------------------------------------------------------------------------------------------ finding 9
+# ------------------------------------------------------------------------------------------ temporary names
 
 LONG_NAMES = ["x" * 251 + ".png", "é" * 125 + ".exr", "日本" * 41 + "語.tif", "y" * 250 + ".json", "z" * 255]
 
@@ -361,11 +440,14 @@ class TestNamesNearNameMax:
         assert all(_bytes(candidate) <= NAME_MAX for candidate in candidates), [_bytes(c) for c in candidates]
         assert temporary_stem(name).startswith(name[:40])
         assert temporary_stem(name) != temporary_stem(name[:-1] + "q")  # the hash tells similar names apart
+        for keep_suffix in (False, True):
+            assert _bytes(temporary_file(Path("/out") / name, keep_suffix=keep_suffix).name) <= NAME_MAX
 
     def test_short_names_are_spelt_out(self) -> None:
         assert temporary_stem("scene.exr", ".exr") == "scene"
         assert temporary_stem("scene.exr") == "scene.exr"
-        assert tmio._temporary_sibling(Path("/out/scene.exr")).name.startswith(".scene.")
+        assert temporary_file(Path("/out/scene.exr"), keep_suffix=True).name.startswith(".scene.")
+        assert temporary_file(Path("/out/scene.exr")).name.startswith(".scene.exr.")
 
     def test_utf8_bytes_not_characters_are_counted(self) -> None:
         name = "日" * 83 + ".exr"  # 87 characters, 253 bytes: its temporary name would pass 255 bytes
@@ -403,17 +485,6 @@ class TestNamesNearNameMax:
         removed = remove_stale_temporaries([tmp_path / image, tmp_path / marker, tmp_path / folder])
         assert sorted(p.name for p in removed) == sorted(stale)
         assert _listing(tmp_path) == kept
-
-    def test_a_batch_on_an_input_of_240_bytes(self, tmp_path: Path) -> None:
-        name = "x" * 236 + ".txt"  # its done marker <name>.json is 245 bytes: its temporary name would be 270
-        tasks = _make_inputs(tmp_path, {name: "alpha"})
-        report = _run(tasks, tmp_path)
-        assert _names(report.done) == [name], report.failed
-        assert (tmp_path / "out" / name).read_text() == "ALPHA"
-        assert _names(_run(tasks, tmp_path).skipped) == [name]
-
-
-# ------------------------------------------------------------------------------------------------ finding 10
 
 
 class TestTemporariesOfTemporaries:
@@ -464,11 +535,11 @@ class TestTemporariesOfTemporaries:
         _stack(final, frames_json="old stack", notes_txt="my notes")
         _killed(
             """
-            import torch_modulo.sensors._swap as swap
+            from torch_modulo._atomic import replace_folder
             def frames(tmp):
                 (tmp / "frame.exr").write_text("half")
                 os._exit(9)
-            swap.replace_folder(Path(sys.argv[1]), lambda tmp: swap.replace_folder(tmp, frames), {"frames.json"})
+            replace_folder(Path(sys.argv[1]), lambda tmp: replace_folder(tmp, frames), {"frames.json"})
             """,
             final,
         )
@@ -476,3 +547,14 @@ class TestTemporariesOfTemporaries:
         remove_stale_temporaries([final])
         assert _listing(tmp_path) == ["s06"]
         assert _listing(final) == ["frames.json", "notes.txt"]
+
+
+def test_the_package_renames_files_in_this_module_only() -> None:
+    """Every rename of the package goes through here, so every write follows the rules above."""
+    root = Path(_atomic.__file__).parent
+    renaming = sorted(
+        path.relative_to(root).as_posix()
+        for path in root.rglob("*.py")
+        if "os.replace(" in path.read_text() or "os.rename(" in path.read_text()
+    )
+    assert renaming == ["_atomic.py"]

@@ -1,0 +1,78 @@
+"""Tests of torch_modulo/_cli_options.py: the option types of the command line (what each option's text becomes)
+and the job options built from parsed arguments. Bad values and combinations, as the command line reports them,
+are tested in test_cli.py."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from torch_modulo._cli_options import JOB_OPTIONS, exposures, noise, param, scale
+from torch_modulo.cli import build_parser
+from torch_modulo.noise import NoiseModel
+
+
+@pytest.mark.parametrize(
+    ("value", "expected"),
+    [
+        ("photon-counting", NoiseModel.preset("photon-counting")),
+        ("q16", NoiseModel.preset("q16")),
+        ("dfpa", NoiseModel.preset("dfpa")),
+        ("default", NoiseModel()),
+        ("read=2,prnu=0.01", NoiseModel(read_noise=2.0, prnu=0.01)),
+        ("q16,read=20", NoiseModel(electrons_per_count=16.0, read_noise=20.0)),
+        ("shot=off", NoiseModel(shot_noise=False)),
+        ("none", None),
+    ],
+)
+def test_noise_values(value: str, expected: NoiseModel | None) -> None:
+    assert noise(value) == ("none" if expected is None else expected.to_dict())
+    parsed = build_parser().parse_args(["simulate", "i", "o", "--noise", value]).noise
+    assert parsed == noise(value)
+
+
+def test_values_of_the_other_types() -> None:
+    assert exposures(" auto ") == "auto" and exposures("1, 16,256") == [1.0, 16.0, 256.0]
+    assert scale("auto") == "auto" and scale("2.5") == 2.5
+    assert param("grid_size=8,8") == ("grid_size", [8, 8])
+    assert (
+        param("key=0.36") == ("key", 0.36) and param("srgb=True") == ("srgb", True) and param("x=none") == ("x", None)
+    )
+    with pytest.raises(argparse.ArgumentTypeError, match="exposures must be finite and > 0; got 'inf'"):
+        exposures("1,inf")
+
+
+def test_job_options_keep_defaults_out_of_the_fingerprint(capsys: pytest.CaptureFixture[str]) -> None:
+    """Options at their defaults are left out, so outputs completed before the option existed stay complete."""
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    args = parser.parse_args(["tonemap", "i", "o"])
+    assert JOB_OPTIONS["tonemap"](args, commands["tonemap"]) == {
+        "op": "histogram",
+        "params": {},
+        "srgb": True,
+        "depth": 8,
+    }
+    args = parser.parse_args(["simulate", "i", "o", "--nonfinite", "raise", "--cfa", "RGGB", "--noise", "none"])
+    options = JOB_OPTIONS["simulate"](args, commands["simulate"])
+    assert options["nonfinite"] == "raise" and options["cfa"] == "RGGB" and options["noise"] is None
+    assert capsys.readouterr().err == ""
+    args = parser.parse_args(["simulate", "i", "o", "--exposures", "1,1000"])
+    assert "nonfinite" not in JOB_OPTIONS["simulate"](args, commands["simulate"])
+    assert capsys.readouterr().err == (
+        "torch-modulo simulate: warning: exposures 1 and 1000 are more than 2^8 apart; `torch-modulo unwrap` cannot "
+        "count the rollovers between them\n"
+    )
+    args = parser.parse_args(["unwrap", "i", "o", "--workers", "1"])
+    options = JOB_OPTIONS["unwrap"](args, commands["unwrap"])
+    assert options == {
+        "single": False,
+        "bits": None,
+        "exposure": None,
+        "method": "robust",
+        "noise": "stack",
+        "solver": None,
+        "confidence": False,
+        "_solver_workers": None,
+    }

@@ -1,0 +1,103 @@
+"""Each folder command's tasks: the inputs ``simulate``, ``unwrap`` and ``tonemap`` take from a folder, the
+outputs each writes, and what a task weighs when ranks share the work.
+
+The command line lists a command's tasks with :func:`folder_tasks` and hands them, with the command's job from
+:mod:`torch_modulo.pipeline`, to :func:`torch_modulo.batch.run_batch`, which weighs them with :func:`count_values`
+under ``torchrun``.
+
+Example:
+    >>> import os, tempfile
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     for name in ("a.exr", "sub/b.hdr", "notes.txt"):
+    ...         os.makedirs(os.path.dirname(os.path.join(folder, "in", name)), exist_ok=True)
+    ...         open(os.path.join(folder, "in", name), "w").close()
+    ...     tasks, wanted = folder_tasks("tonemap", Path(folder, "in"), Path(folder, "out"))
+    ...     [(t.name, os.path.relpath(t.outputs[0], folder)) for t in tasks]
+    [('a.exr', 'out/a.png'), ('sub/b.hdr', 'out/sub/b.png')]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from torch_modulo._task import Task
+from torch_modulo.batch.tasks import discover
+from torch_modulo.radiance import RADIANCE_EXTENSIONS
+from torch_modulo.sensors.files import MANIFEST
+
+__all__ = ["MODULUS_EXTENSIONS", "count_values", "folder_tasks"]
+
+#: Modulus images ``unwrap --single`` reads.
+MODULUS_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm")
+
+
+def folder_tasks(
+    command: str, source: Path, out: Path, *, single: bool = False, confidence: bool = False
+) -> tuple[list[Task], str]:
+    """The tasks of folder command ``command`` (sorted by input name) and a description of the inputs it wants.
+
+    ``simulate``: every radiance file -> the frame-stack folder ``out/<name>/``; ``tonemap``: every radiance file
+    -> ``out/<name>.png``; ``unwrap``: every frame stack (folder with a ``frames.json``) -> ``out/<stack>.exr``,
+    or with ``single`` every frame stack and every modulus image outside the stacks -> ``out/<name>.exr`` (and
+    ``out/<name>.confidence.exr`` with ``confidence``). Output paths mirror the input's subfolders.
+
+    Raises:
+        FileNotFoundError: ``source`` does not exist.
+        OSError: a folder cannot be listed.
+    """
+
+    def suffix_match(extensions: Sequence[str]) -> Callable[[Path], bool]:
+        # A broken link with a matching name is an input too: its job fails naming it, rather than it vanishing.
+        return lambda p: (p.is_file() or (p.is_symlink() and not p.exists())) and p.suffix.lower() in extensions
+
+    def is_stack(p: Path) -> bool:
+        return p.is_dir() and (p / MANIFEST).is_file()
+
+    if command in ("simulate", "tonemap"):
+        found = discover(source, suffix_match(RADIANCE_EXTENSIONS))
+        wanted = f"radiance files ({' '.join(RADIANCE_EXTENSIONS)})"
+    elif single:
+        # A stack is one input (its frame, scored against its truth); the files inside it are not inputs.
+        image = suffix_match(MODULUS_EXTENSIONS)
+        found = discover(source, lambda p: is_stack(p) or image(p))
+        wanted = f"frame stacks or modulus images ({' '.join(MODULUS_EXTENSIONS)})"
+    else:
+        found = discover(source, is_stack)
+        wanted = f"frame stacks (folders with a {MANIFEST} manifest)"
+    tasks = []
+    for name, path in found:
+        rel = Path(name)
+        if command == "simulate":
+            target = out / rel.with_suffix("")
+        elif command == "unwrap":
+            stack = not single or path.is_dir()
+            target = out / (rel.with_name(rel.name + ".exr") if stack else rel.with_suffix(".exr"))
+        else:
+            target = out / rel.with_suffix(".png")
+        targets = [target]
+        if command == "unwrap" and single and confidence:
+            targets.append(target.with_name(f"{target.stem}.confidence.exr"))
+        tasks.append(Task(name, str(path), tuple(str(t) for t in targets)))
+    return tasks, wanted
+
+
+def count_values(task: Task) -> float:
+    """What a task costs when ranks share the work: the number of values (pixels times channels) of its input
+    file, or of the image files in its input folder (from the files' headers; 0 for unreadable ones)."""
+    import OpenImageIO as oiio
+
+    source = Path(task.source)
+    files = [source] if not source.is_dir() else sorted(p for p in source.iterdir() if not p.name.startswith("."))
+    total = 0
+    for path in files:
+        if path.suffix.lower() == ".json" or not path.is_file():
+            continue
+        image = oiio.ImageInput.open(str(path))
+        if image is None:
+            oiio.geterror()  # clear the error OpenImageIO keeps for the next caller
+            continue
+        spec = image.spec()
+        total += spec.width * spec.height * spec.nchannels
+        image.close()
+    return float(total)
