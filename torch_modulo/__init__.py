@@ -45,6 +45,7 @@ from torch_modulo.multishot import (
     unwrap_multi,
 )
 from torch_modulo.singleshot import (
+    LearnedConfidence,
     Potential,
     SingleShotInfo,
     SingleShotUnwrap,
@@ -81,6 +82,7 @@ __all__ = [
     "unwrap_energy",
     "unwrap_confidence",
     "learned_confidence",
+    "LearnedConfidence",
     "SingleShotInfo",
     "SingleShotUnwrap",
     "unwrap_single",
