@@ -17,7 +17,7 @@ ends the output.
   pixels roll over in at least one channel, ``I = floor(clip(x e, 0, 1) * 4095)`` per channel.
 
 Methods: every method :func:`torch_modulo.singleshot.unwrap_single` accepts, with options as
-``fast:init=quality,tile=0`` or ``guided:denoise=0.7``, and ``skimage`` (scikit-image's ``unwrap_phase``, Herraez
+``fast:init=quality,window=0`` or ``guided:denoise=0.7``, and ``skimage`` (scikit-image's ``unwrap_phase``, Herraez
 et al. 2002, on ``I_m 2 pi / 256``, a baseline). Every scene is first downsampled by whole-pixel area averaging
 (smallest integer factor) until its longer side is at most ``--scale`` (512).
 

@@ -91,7 +91,7 @@ def run_method(spec: str, modulus: np.ndarray, workers: int = 1) -> tuple[np.nda
 
     Args:
         spec: ``"skimage"`` (scikit-image's ``unwrap_phase``, Herraez et al. 2002) or a method of
-            :func:`torch_modulo.unwrap_single` with options, as ``"fast:init=quality,tile=0"``.
+            :func:`torch_modulo.unwrap_single` with options, as ``"fast:init=quality,window=0"``.
         modulus: (C, H, W) integer-valued array in ``[0, 256)``.
         workers: worker processes for ``unwrap_single``.
     """

@@ -479,8 +479,8 @@ def parse_method(spec: str) -> tuple[str, dict[str, object]]:
         ValueError: the name is empty or an option has no ``=``.
 
     Example:
-        >>> parse_method("fast:init=quality,tile=0,denoise=0.7")
-        ('fast', {'init': 'quality', 'tile': 0, 'denoise': 0.7})
+        >>> parse_method("fast:init=quality,window=0,denoise=0.7")
+        ('fast', {'init': 'quality', 'window': 0, 'denoise': 0.7})
         >>> parse_method("guided")
         ('guided', {})
         >>> parse_method("learned: levels=false")

@@ -14,7 +14,7 @@ def _ramp(h: int = 12, w: int = 16) -> np.ndarray:
 
 
 class TestCommon:
-    @pytest.mark.parametrize("spec", ["guided", "fast:tile=0", "skimage"])
+    @pytest.mark.parametrize("spec", ["guided", "fast:window=0", "skimage"])
     def test_run_method_recovers_a_ramp(self, spec: str) -> None:
         truth = _ramp()
         restored, seconds = common.run_method(spec, np.mod(truth, common.PERIOD))
