@@ -1,4 +1,4 @@
-"""Where the paper's graph cut spends its time: one global min cut near the optimum vs at ``k = 0``, and tiles.
+"""Where the paper's graph cut spends its time: one global min cut near the optimum vs at ``k = 0``, and local windows.
 
 For each named scene under protocol A (same scenes and downsampling as benchmarks/bench_single.py), 8 bits:
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from research.common import DATA, PERIOD, load, protocol_a, select_scenes
 from torch_modulo.singleshot.energy import EnergyParams
-from torch_modulo.singleshot.graphcut import pixel_move, plane_energy, solve_pixels, solve_tiles
+from torch_modulo.singleshot.graphcut import pixel_move, plane_energy, solve_pixels, solve_windows
 from torch_modulo.singleshot.grid import pair_offsets
 from torch_modulo.singleshot.spec import MoveStats
 
@@ -51,7 +51,7 @@ def measure(modulus: np.ndarray, tiles: tuple[int, ...] = TILES) -> dict:
     start = time.perf_counter()
     tiled = modulus.copy()
     for tile in tiles:
-        tiled = solve_tiles(tiled, p, offsets, tile=tile)
+        tiled = solve_windows(tiled, p, offsets, window=tile)
     tiles_s = time.perf_counter() - start
     return {
         "mp": mp,
