@@ -238,6 +238,29 @@ class TestDemosaic:
         assert float(demosaic(m, "RGGB").min()) == 0.0
         assert float(demosaic(m, "RGGB", "bilinear").min()) == 0.0
 
+    @pytest.mark.parametrize("method", DEMOSAIC_METHODS)
+    @pytest.mark.parametrize("pattern", CFA_PATTERNS)
+    def test_negative_photosites_kept_exactly(self, pattern: str, method: str) -> None:
+        # Regression: "malvar" clamped negative photosite values (dark-subtracted counts, say) to 0, contrary to "the
+        # photosites' own values are kept exactly". Both methods keep them, and a flat negative colour comes back.
+        m = _rgb((2, 1, 6, 8)).floor() - 40.0
+        assert float(m.min()) < 0
+        out = demosaic(m, pattern, method)
+        assert torch.equal(mosaic(out, pattern), m)
+        assert float(out.min()) >= float(m.min())  # nothing below the image's own darkest value
+        flat = torch.tensor([-7.0, 3500.0, -0.5], dtype=torch.float64).view(1, 3, 1, 1).expand(1, 3, 6, 8)
+        assert torch.equal(demosaic(mosaic(flat, pattern), pattern, method), flat)
+
+    def test_malvar_overshoot_floor_is_per_image(self) -> None:
+        # The overshoot stops at 0, or at the image's own darkest value when that is negative: one image's negative
+        # values do not lower the floor of another image of the batch.
+        m = torch.zeros(2, 1, 8, 8, dtype=torch.float64)
+        m[..., :, 4:] = 1e6
+        m[1, ..., 0, 0] = -3.0
+        out = demosaic(m, "RGGB")
+        assert float(out[0].min()) == 0.0 and float(out[1].min()) == -3.0
+        assert torch.equal(out[0:1], demosaic(m[0:1], "RGGB"))
+
     def test_errors(self) -> None:
         with pytest.raises(TypeError, match="counts must be a floating-point tensor"):
             demosaic(torch.zeros(1, 1, 4, 4, dtype=torch.int64), "RGGB")

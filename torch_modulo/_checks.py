@@ -11,18 +11,25 @@ Validation switch:
     The checks that read a tensor's values (:func:`check_finite`, :func:`check_nonnegative`, the value pass of
     :func:`check_modulus`, the positivity of :func:`exposure_tensor`, and the library's other value checks
     built on them) cost a reduction pass and a host sync each, and break a ``torch.compile`` graph. They are on
-    by default; :func:`validation` (a context manager and decorator) or :func:`set_validation` switch them off,
-    for every thread of the process. Under ``torch.compile`` the layers take whole-tensor paths, so with the
-    checks off they trace in one graph and ``torch.compile(layer, fullgraph=True)`` works (the capture layers, the
-    multi-exposure unwrap and the global tone maps). With validation off, invalid input (negative or non-finite
-    radiance, moduli outside ``[0, 2**bits)``, non-positive exposures) is no longer refused and gives undefined
-    results. Checks of Python arguments, dtypes and shapes cost nothing and stay on.
+    by default; :func:`validation` (a context manager and decorator) or :func:`set_validation` switch them off in
+    the current thread and context only, as ``torch.no_grad`` does: the setting is a :class:`contextvars.ContextVar`,
+    so other threads, and asyncio tasks started before the switch, keep their own. Under ``torch.compile`` the
+    layers take whole-tensor paths, so with the checks off they trace in one graph and
+    ``torch.compile(layer, fullgraph=True)`` works (the capture layers, the multi-exposure unwrap and the global tone
+    maps). With validation off, invalid input (negative or non-finite radiance, moduli outside ``[0, 2**bits)``,
+    non-positive exposures) is no longer refused and gives undefined results. Checks of Python arguments, dtypes
+    and shapes cost nothing and stay on.
+
+Tensors on the ``meta`` device hold no values: the value checks refuse them with a ``ValueError`` that names the
+device (with validation off they are not read, so shape-only work such as the capture still runs on them).
 """
 
 from __future__ import annotations
 
+import contextvars
 import math
 import numbers
+import threading
 from collections.abc import Collection, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -39,6 +46,7 @@ __all__ = [
     "check_real",
     "check_finite",
     "check_floating",
+    "check_has_values",
     "check_image_shape",
     "check_modulus",
     "check_nonnegative",
@@ -50,31 +58,46 @@ __all__ = [
     "validation_enabled",
 ]
 
-# A plain module global (not thread-local) so that torch.compile guards on it: a compiled layer recompiles when the
-# switch changes instead of silently keeping the path it was traced with.
-_VALIDATION: bool = True
+# The setting of the current thread and context. Dynamo cannot read a ContextVar, so compiled code reads (and guards
+# on) a thread-local copy of it instead, kept equal to the ContextVar of the context that last switched it in this
+# thread: a compiled layer recompiles when the switch changes instead of silently keeping the path it was traced with,
+# and one thread's setting never reaches another thread's compiled code.
+_VALIDATION: contextvars.ContextVar[bool] = contextvars.ContextVar("torch_modulo_validation", default=True)
+
+
+class _TracedSetting(threading.local):
+    def __init__(self) -> None:
+        self.enabled = True
+
+
+_TRACED = _TracedSetting()
 
 
 def validation_enabled() -> bool:
-    """Whether the value checks are on (the default); see :func:`validation`.
+    """Whether the value checks are on (the default) in the current thread and context; see :func:`validation`.
 
     Example:
         >>> validation_enabled()
         True
     """
-    return _VALIDATION
+    if torch.compiler.is_compiling():
+        return _TRACED.enabled
+    return _VALIDATION.get()
 
 
 def set_validation(enabled: bool) -> bool:
-    """Switch the value checks on or off for the whole process and return the previous setting.
+    """Switch the value checks on or off in the current thread and context, and return the previous setting there.
 
-    Prefer the :func:`validation` context manager, which restores the previous setting on exit.
+    It sets the :class:`contextvars.ContextVar` that :func:`validation_enabled` reads: the setting holds in the
+    calling thread (other threads keep theirs; a new thread starts with the checks on) and in the current context
+    (an asyncio task changes its own copy; tasks started afterwards inherit it), until it is set again. Nothing
+    restores it: prefer the :func:`validation` context manager, which restores the previous setting on exit.
 
     Args:
         enabled: ``True`` to check tensor values (the default), ``False`` to skip those checks.
 
     Returns:
-        The setting before the call.
+        The setting of the current thread and context before the call.
 
     Raises:
         TypeError: ``enabled`` is not a bool.
@@ -85,9 +108,10 @@ def set_validation(enabled: bool) -> bool:
         False
         >>> _ = set_validation(previous)
     """
-    global _VALIDATION
     enabled = check_flag(enabled, "enabled")
-    previous, _VALIDATION = _VALIDATION, enabled
+    previous = _VALIDATION.get()
+    _VALIDATION.set(enabled)
+    _TRACED.enabled = enabled
     return previous
 
 
@@ -99,7 +123,11 @@ def validation(enabled: bool) -> Iterator[None]:
     ``[0, 2**bits)``; positive exposures) each cost a pass over the data and a host sync, and they break
     ``torch.compile`` graphs. Inside ``validation(False)`` they are skipped, so the layers trace in one graph and
     ``torch.compile(layer, fullgraph=True)`` works; invalid input then gives undefined results instead of an error.
-    The setting is process-wide (shared by threads); a compiled layer recompiles when it changes.
+    Like ``torch.no_grad``, the setting belongs to the current thread and context (see :func:`set_validation`):
+    a ``validation(False)`` in one thread or asyncio task leaves the checks of the others on. A compiled layer
+    recompiles when the setting of the thread that calls it changes. (Compiled code reads the setting of the
+    thread, as Dynamo cannot read a ``ContextVar``: the setting last made in that thread, by whichever of its
+    contexts made it.)
 
     Args:
         enabled: ``False`` to skip the value checks, ``True`` to force them on.
@@ -117,11 +145,33 @@ def validation(enabled: bool) -> Iterator[None]:
         ...     check_nonnegative(x, "radiance")
         tensor([-1.,  2.])
     """
-    previous = set_validation(enabled)
+    enabled = check_flag(enabled, "enabled")
+    token = _VALIDATION.set(enabled)
+    _TRACED.enabled = enabled
     try:
         yield
     finally:
-        set_validation(previous)
+        try:
+            _VALIDATION.reset(token)
+        except (ValueError, RuntimeError):  # exited in another context than it entered: restore the value itself
+            _VALIDATION.set(token.old_value if token.old_value is not contextvars.Token.MISSING else True)
+        _TRACED.enabled = _VALIDATION.get()
+
+
+def check_has_values(x: torch.Tensor, name: str) -> torch.Tensor:
+    """Raise ``ValueError`` if ``x`` is on the ``meta`` device, which holds no values to read; return ``x``.
+
+    Example:
+        >>> check_has_values(torch.zeros(2, device="meta"), "radiance")
+        Traceback (most recent call last):
+        ...
+        ValueError: radiance is on the meta device, which holds no values; got a meta tensor of shape (2,)
+    """
+    if x.device.type == "meta":
+        raise ValueError(
+            f"{name} is on the meta device, which holds no values; got a meta tensor of shape {tuple(x.shape)}"
+        )
+    return x
 
 
 #: Largest bit depth whose integers (up to 2**bits) each floating dtype holds exactly.
@@ -301,13 +351,14 @@ def check_finite(x: torch.Tensor, name: str) -> torch.Tensor:
     """Raise ``ValueError`` if ``x`` holds NaN or infinity; the message counts them.
 
     One reduction pass (NaN and Inf propagate into the extremes); the counting passes run only on failure. A no-op
-    with :func:`validation` off.
+    with :func:`validation` off; a tensor on the ``meta`` device is refused (:func:`check_has_values`).
     """
-    if _VALIDATION and x.numel() and x.is_floating_point():
-        lo, hi = torch.aminmax(x.detach())
+    if validation_enabled() and x.numel() and x.is_floating_point():
+        values = check_has_values(x, name).detach()
+        lo, hi = torch.aminmax(values)
         if not (math.isfinite(float(lo)) and math.isfinite(float(hi))):
-            n_nan = int(torch.isnan(x).sum())
-            n_inf = int(torch.isinf(x).sum())
+            n_nan = int(torch.isnan(values).sum())
+            n_inf = int(torch.isinf(values).sum())
             raise ValueError(f"{name} must be finite; got {n_nan} NaN and {n_inf} Inf values")
     return x
 
@@ -315,9 +366,9 @@ def check_finite(x: torch.Tensor, name: str) -> torch.Tensor:
 def check_nonnegative(x: torch.Tensor, name: str) -> torch.Tensor:
     """Raise ``ValueError`` if ``x`` is not finite or holds negative values (one reduction pass when valid).
 
-    A no-op with :func:`validation` off.
+    A no-op with :func:`validation` off; a tensor on the ``meta`` device is refused (:func:`check_has_values`).
     """
-    if _VALIDATION:
+    if validation_enabled():
         nonnegative_max(x, name)
     return x
 
@@ -325,7 +376,8 @@ def check_nonnegative(x: torch.Tensor, name: str) -> torch.Tensor:
 def nonnegative_max(x: torch.Tensor, name: str) -> float:
     """Validate ``x`` as :func:`check_nonnegative` does and return its largest value (0.0 when empty).
 
-    With :func:`validation` off it only returns the largest value (NaN propagates; negatives are not refused).
+    With :func:`validation` off it only returns the largest value (NaN propagates; negatives are not refused). It
+    reads a value either way, so a tensor on the ``meta`` device is refused either way (:func:`check_has_values`).
 
     Example:
         >>> nonnegative_max(torch.tensor([0.5, 3.0]), "radiance")
@@ -333,9 +385,10 @@ def nonnegative_max(x: torch.Tensor, name: str) -> float:
     """
     if not x.numel():
         return 0.0
-    if not _VALIDATION:
-        return float(x.detach().max())
-    lo, hi = torch.aminmax(x.detach())
+    values = check_has_values(x, name).detach()
+    if not validation_enabled():
+        return float(values.max())
+    lo, hi = torch.aminmax(values)
     lo_f, hi_f = float(lo), float(hi)
     if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
         check_finite(x, name)
@@ -348,30 +401,34 @@ def check_modulus(modulus: torch.Tensor, bits: int, name: str = "modulus") -> to
     """Validate a modulus image: a floating tensor of integers in ``[0, 2**bits)``.
 
     One fused pass computes the extremes and the integrality test; the slow diagnostic passes run only when
-    something is wrong. With :func:`validation` off only the dtype and ``bits`` are checked.
+    something is wrong. With :func:`validation` off only the dtype and ``bits`` are checked. The values are read
+    detached (no autograd warning for a modulus that requires grad); a modulus on the ``meta`` device is refused
+    (:func:`check_has_values`).
     """
     check_floating(modulus, name)
     check_bits(bits, modulus.dtype)
-    if not _VALIDATION or modulus.numel() == 0:
+    if not validation_enabled() or modulus.numel() == 0:
         return modulus
-    lo, hi = torch.aminmax(modulus)
+    values = check_has_values(modulus, name).detach()
+    lo, hi = torch.aminmax(values)
     lo_f, hi_f = float(lo), float(hi)
     if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
-        check_finite(modulus, name)
+        check_finite(values, name)
     period = 2**bits
     if lo_f < 0 or hi_f >= period:
         raise ValueError(f"{name} must hold integers in [0, {period}) for bits={bits}; got min {lo_f}, max {hi_f}")
-    if not all_integers(modulus):
-        frac = modulus - torch.floor(modulus)
-        bad = modulus.flatten()[int(frac.flatten().argmax())]
+    if not all_integers(values, name=name):
+        frac = values - torch.floor(values)
+        bad = values.flatten()[int(frac.flatten().argmax())]
         raise ValueError(f"{name} must hold integers for bits={bits}; got non-integer value {float(bad)}")
     return modulus
 
 
-def all_integers(x: torch.Tensor, chunk: int = 1 << 16) -> bool:
+def all_integers(x: torch.Tensor, chunk: int = 1 << 16, *, name: str = "tensor") -> bool:
     """True when every value of ``x`` is an integer; on the CPU it compares cache-sized chunks of ``chunk`` elements
-    with one scratch buffer."""
-    x = x.detach()
+    with one scratch buffer. A tensor on the ``meta`` device (named ``name``) is refused, whatever the validation
+    switch (:func:`check_has_values`)."""
+    x = check_has_values(x, name).detach()
     if not x.is_floating_point():
         return True
     if x.device.type != "cpu" or x.numel() <= chunk:
@@ -401,6 +458,42 @@ def check_nonempty_image(x: torch.Tensor, name: str) -> torch.Tensor:
     return x
 
 
+#: The integer dtypes whose tensors :func:`exposure_tensor` takes as real numbers, as it takes Python ints.
+_INTEGER_DTYPES = frozenset(
+    d
+    for d in (
+        torch.uint8,
+        torch.int8,
+        torch.int16,
+        torch.int32,
+        torch.int64,
+        getattr(torch, "uint16", None),
+        getattr(torch, "uint32", None),
+        getattr(torch, "uint64", None),
+    )
+    if d is not None
+)
+
+
+def _is_flag_or_text(value: object) -> bool:
+    """True for what is not a number though Python or torch would convert it to one: bools and strings."""
+    if isinstance(value, bool | str | bytes | bytearray):
+        return True
+    if type(value).__module__ == "numpy" and type(value).__name__ in ("bool", "bool_", "str_", "bytes_"):
+        return True
+    return isinstance(value, torch.Tensor) and value.dtype == torch.bool
+
+
+def _holds_flags_or_text(values: Sequence[object]) -> bool:
+    """True when a (nested) sequence holds a bool or a string anywhere."""
+    for value in values:
+        if _is_flag_or_text(value):
+            return True
+        if isinstance(value, Sequence) and _holds_flags_or_text(value):
+            return True
+    return False
+
+
 def exposure_tensor(
     exposure: float | Sequence[float] | torch.Tensor,
     like: torch.Tensor,
@@ -409,45 +502,63 @@ def exposure_tensor(
     """Turn a positive finite exposure (a number, a sequence of numbers, a numpy array or a tensor) into a tensor on
     ``like``'s device and dtype.
 
+    One rule for every form: exposures are real numbers. A bool or a string is refused as a scalar, inside a
+    (nested) sequence and as a numpy array or tensor dtype, complex values too; integers are real numbers in every
+    form (Python and numpy ints, numpy integer arrays, and tensors of any integer dtype, ``uint8`` included).
+
     With :func:`validation` off the values are not checked (the conversion is then traceable by ``torch.compile``).
 
     Raises:
         TypeError: ``exposure`` is not a number, sequence of numbers, numpy array or tensor of real numbers.
-        ValueError: a value is not positive or not finite.
+        ValueError: a value is not positive or not finite, or ``exposure`` is a tensor on the ``meta`` device
+            (:func:`check_has_values`; with the checks off a meta ``exposure`` is fine for a meta ``like``).
+
+    Example:
+        >>> exposure_tensor(torch.tensor([1, 16], dtype=torch.uint8), torch.zeros(2))
+        tensor([ 1., 16.])
+        >>> exposure_tensor([1.0, True], torch.zeros(2), "exposures")
+        Traceback (most recent call last):
+        ...
+        TypeError: exposures must hold real numbers, not bools or strings; got [1.0, True]
     """
     if isinstance(exposure, torch.Tensor):
-        if not (exposure.is_floating_point() or exposure.dtype in (torch.int32, torch.int64, torch.int16)):
+        if not (exposure.is_floating_point() or exposure.dtype in _INTEGER_DTYPES):
             raise TypeError(f"{name} must hold real numbers; got dtype {exposure.dtype}")
-        tau = exposure.to(device=like.device, dtype=like.dtype)
-    elif isinstance(exposure, bool):
+        if like.device.type != "meta":
+            check_has_values(exposure, name)  # its values are copied to ``like``'s device
+        source = exposure
+    elif _is_flag_or_text(exposure):
         raise TypeError(f"{name} must be a positive number or tensor; got {exposure!r}")
     elif isinstance(exposure, numbers.Real):  # int, float and numpy scalars
-        tau = torch.tensor(float(exposure), device=like.device, dtype=like.dtype)
+        source = torch.tensor(float(exposure), dtype=torch.float64)
     elif type(exposure).__module__ == "numpy" and hasattr(exposure, "__array__"):  # a numpy array: as a tensor
         try:
             array = torch.as_tensor(exposure)
         except (TypeError, ValueError, RuntimeError):
             raise TypeError(f"{name} must hold real numbers; got {exposure!r}") from None
         return exposure_tensor(array, like, name)
-    elif isinstance(exposure, Sequence) and not isinstance(exposure, str):
+    elif isinstance(exposure, Sequence):
+        if _holds_flags_or_text(exposure):  # torch.tensor and float() would take True as 1.0 and "16" as 16.0
+            raise TypeError(f"{name} must hold real numbers, not bools or strings; got {exposure!r}")
         try:  # nested sequences too: (B, M) exposures as a list of lists
-            values = torch.tensor(exposure, dtype=torch.float64)
+            source = torch.tensor(exposure, dtype=torch.float64)
         except (TypeError, ValueError, RuntimeError):
             try:  # anything float() takes: Fraction, Decimal, one-element arrays and tensors
-                values = torch.tensor([float(v) for v in exposure], dtype=torch.float64)
+                source = torch.tensor([float(v) for v in exposure], dtype=torch.float64)
             except (TypeError, ValueError, RuntimeError):
                 raise TypeError(
                     f"{name} must be a sequence of numbers (or of equal-length sequences of numbers); got {exposure!r}"
                 ) from None
-        tau = values.to(device=like.device, dtype=like.dtype)
     else:
         raise TypeError(f"{name} must be a positive number, a sequence of numbers or a tensor; got {exposure!r}")
-    if _VALIDATION and tau.numel():
-        values = tau.detach()
+    if validation_enabled() and source.numel():
+        # Checked where the values are (the CPU for Python numbers: also for a ``like`` on the meta device), in
+        # ``like``'s dtype, which is what the operation uses (float16 turns 1e5 into inf).
+        values = check_has_values(source, name).detach().to(dtype=like.dtype)
         finite = torch.isfinite(values)
         if not bool(finite.all()):
             raise ValueError(f"{name} must be finite; got {values[~finite].flatten()[0].item()}")
         lo = float(values.min())
         if lo <= 0:
             raise ValueError(f"{name} must be positive; got {lo}")
-    return tau
+    return source.to(device=like.device, dtype=like.dtype)

@@ -24,6 +24,8 @@ Every function has a layer twin (:class:`Mosaic`, :class:`Demosaic`) whose ``for
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -232,10 +234,12 @@ def demosaic(counts: torch.Tensor, cfa: str, method: str = "malvar") -> torch.Te
     Both methods are linear filters of the mosaic with no clipping at the top, so they keep HDR values of any
     range. ``"malvar"`` (default) is the gradient-corrected linear interpolation of Malvar, He and Cutler (2004):
     bilinear plus a share of the Laplacian of the photosite's own colour, which follows edges better; it can
-    overshoot below zero next to very steep edges, and those values are set to 0 (radiance is not negative).
-    ``"bilinear"`` averages the nearest photosites of each missing colour (as ``kornia.color.raw_to_rgb``) and
-    never overshoots. The measured PSNR of both on the dev scenes is in ``docs/cfa.md``. Borders are mirrored
-    without repeating the edge, which keeps the pattern. The photosites' own values are kept exactly.
+    overshoot below zero next to very steep edges, and those values are set to 0 (radiance is not negative), or to
+    the image's own darkest value where that is negative. ``"bilinear"`` averages the nearest photosites of each
+    missing colour (as ``kornia.color.raw_to_rgb``) and never overshoots. The measured PSNR of both on the dev
+    scenes is in ``docs/cfa.md``. Borders are mirrored without repeating the edge, which keeps the pattern. In both
+    methods the photosites' own values are kept exactly, negative ones (dark-subtracted counts, say) included, and
+    a flat colour comes back exactly whatever its sign.
 
     Args:
         counts: (*, 1, H, W) mosaic of unwrapped counts or radiance (floating), even H and W.
@@ -276,7 +280,10 @@ def demosaic(counts: torch.Tensor, cfa: str, method: str = "malvar") -> torch.Te
     index = torch.tensor(sel, device=x.device).view(3, 2, 2).repeat(1, h // 2, w // 2)
     rgb = torch.gather(filtered, 1, index.expand(x.shape[0], 3, h, w))
     if method == "malvar":
-        rgb = rgb.clamp(min=0.0)
+        # The overshoot floor: 0, or the image's darkest value where it is negative, so that no photosite's own
+        # value is changed. Per image, without a host sync; an image holding NaN keeps the floor 0, as before.
+        darkest = x.detach().amin(dim=(1, 2, 3)).clamp(max=0.0)
+        rgb = rgb.clamp(min=darkest.nan_to_num(nan=0.0, neginf=-math.inf).view(-1, 1, 1, 1))
     return rgb.reshape(*lead, 3, h, w)
 
 

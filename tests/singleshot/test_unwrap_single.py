@@ -60,6 +60,64 @@ class TestUnwrapSingle:
         with pytest.warns(UserWarning, match=rf"beyond what {small} holds exactly \({peak}\)"):
             unwrap_single((beyond % 128).to(small), 7, method="guided")
 
+    def test_float32_beyond_its_integers_is_told_to_use_float64(self) -> None:
+        # Regression: float32 users were told to "use float32 or float64".
+        counts = torch.arange(0.0, 2.0**25, 2.0**18).reshape(1, -1).repeat(4, 1)  # up to twice 2**24
+        with pytest.warns(UserWarning, match=r"beyond what torch.float32 holds exactly \(16777216\)") as record:
+            out = unwrap_single((counts % 2**24).float(), 24, method="guided")
+        message = str(record[0].message)
+        assert "use float64" in message and "float32 or" not in message
+        assert torch.equal(out.double(), counts)  # multiples of 2**18: float32 holds these ones
+
+    def test_float64_beyond_2_to_53_says_what_holds(self) -> None:
+        # Regression: float64 users at bits=53 were told to "use float32 or float64", which cannot help.
+        counts = torch.arange(0.0, 2.0**54, 2.0**47, dtype=torch.float64).reshape(1, -1).repeat(4, 1)
+        with pytest.warns(UserWarning, match=r"beyond what torch.float64 holds exactly \(9007199254740992\)") as record:
+            out = unwrap_single(counts % 2**53, 53, method="guided")
+        message = str(record[0].message)
+        assert "no floating dtype holds them exactly" in message and "use float" not in message
+        assert torch.equal(out, counts)
+
+    def test_float16_counts_past_65504_become_inf_with_a_warning(self) -> None:
+        # Regression: float16 counts above its largest finite value (65504) became inf with only the rounding warning.
+        counts = torch.arange(0.0, 2.0**17, 512.0).reshape(1, -1).repeat(4, 1)  # up to 130560
+        with pytest.warns(UserWarning) as record:
+            out = unwrap_single((counts % 2048).half(), 11, method="guided")
+        n_inf = int(torch.isinf(out).sum())
+        assert n_inf == int((counts >= 65520).sum()) > 0  # what rounds past 65504 in float16
+        messages = [str(w.message) for w in record]
+        assert any(f"{n_inf} restored counts are above 65504" in m and "became inf" in m for m in messages), messages
+        assert all("float16 or" not in m for m in messages)
+
+    def test_requires_grad_modulus_gives_no_torch_warning(self) -> None:
+        # Regression: the checks read a modulus that requires grad without detaching it, and torch warned.
+        modulus = (scene("ramp", 16) % 256).requires_grad_()
+        warn_always = torch.is_warn_always_enabled()
+        torch.set_warn_always(True)  # torch gives that warning once per process: every time here
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                out = unwrap_single(modulus, method="guided")
+                assert torch.equal(SingleShotUnwrap(method="guided")(modulus), out)
+        finally:
+            torch.set_warn_always(warn_always)
+        assert torch.equal(out, scene("ramp", 16))
+
+    @pytest.mark.parametrize("method", ["guided", "learned"])
+    def test_channels_last_comes_back_channels_last(self, method: str) -> None:
+        # Regression: a channels_last input came back contiguous from SingleShotUnwrap and unwrap_single.
+        truth = (
+            torch.stack([scene("ramp", 16), scene("steps", 16), scene("mixed", 16)]).float()[None].repeat(2, 1, 1, 1)
+        )
+        modulus = (truth % 256).contiguous(memory_format=torch.channels_last)
+        out = SingleShotUnwrap(method=method)(modulus)
+        assert out.is_contiguous(memory_format=torch.channels_last) and not out.is_contiguous()
+        assert torch.equal(out, unwrap_single(modulus.contiguous(), method=method))
+        assert unwrap_single(modulus, method=method).is_contiguous(memory_format=torch.channels_last)
+        restored, info = unwrap_single(modulus, method="learned", return_info=True)
+        assert info.confidence is not None and info.confidence.is_contiguous(memory_format=torch.channels_last)
+        assert unwrap_single(modulus.contiguous(), method=method).is_contiguous()  # contiguous stays contiguous
+
     @pytest.mark.parametrize("kind", ["ramp", "bumps", "steps", "mixed"])
     @pytest.mark.parametrize("method", ["paper", "fast", "guided"])
     def test_recovers_smooth_scenes_exactly(self, kind: str, method: str) -> None:

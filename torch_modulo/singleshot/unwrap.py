@@ -21,6 +21,7 @@ from torch_modulo._checks import (
     check_bits,
     check_flag,
     check_floating,
+    check_has_values,
     check_image_shape,
     check_modulus,
     check_nonempty_image,
@@ -66,6 +67,36 @@ class SingleShotInfo:
     confidence: torch.Tensor | None = None
 
 
+def _warn_inexact(restored: torch.Tensor, peak: float) -> None:
+    """Warn when the restored counts (largest ``peak``) pass the integers ``restored``'s dtype holds exactly, with
+    the advice that fits the dtype; float16 counts past its largest finite value (65504) became inf: say how many."""
+    dtype = restored.dtype
+    limit = 2 ** MAX_BITS.get(dtype, 53)  # every integer up to it, not all of those above
+    if peak <= limit:
+        return
+    if dtype == torch.float64:
+        advice = "they are rounded to the nearest float64, and no floating dtype holds them exactly"
+    else:
+        advice = "use float64 for exact counts" if dtype == torch.float32 else "use float32 or float64 for exact counts"
+    warnings.warn(
+        f"restored counts reach {peak:.0f}, beyond what {dtype} holds exactly ({limit}): {advice}", stacklevel=4
+    )
+    if dtype == torch.float16 and peak > float(torch.finfo(dtype).max):
+        n_inf = int(torch.isinf(restored).sum())
+        if n_inf:
+            warnings.warn(
+                f"{n_inf} restored counts are above 65504, the largest float16, and became inf; use float32 or float64",
+                stacklevel=4,
+            )
+
+
+def _like(out: torch.Tensor, modulus: torch.Tensor) -> torch.Tensor:
+    """``out`` (of ``modulus``'s shape) in ``modulus``'s memory format: channels_last stays channels_last."""
+    if modulus.dim() == 4 and not modulus.is_contiguous() and modulus.is_contiguous(memory_format=torch.channels_last):
+        return out.contiguous(memory_format=torch.channels_last)
+    return out
+
+
 def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tuple[torch.Tensor, SingleShotInfo]:
     """Check the tensor, solve its planes (in workers when that pays) and assemble the output and the info."""
     check_tensor(modulus, "modulus")
@@ -74,6 +105,7 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     check_bits(spec.params.bits, modulus.dtype)
     check_nonempty_image(modulus, "modulus")
     h, w = modulus.shape[-2:]
+    check_has_values(modulus, "modulus")  # the solvers read values, with the checks off too
     check_modulus(modulus, spec.params.bits)
     lead = (1, 1, *modulus.shape)[-4:-2]  # (B, C), with B = 1 and C = 1 filled in for unbatched inputs
     b, c = int(lead[0]), int(lead[1])
@@ -90,14 +122,8 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     for plane, (r, _) in zip(restored, results, strict=True):
         plane.copy_(torch.from_numpy(r.astype(np.float64)))
     peak = max((float(r.max()) for r, _ in results if r.size), default=0.0)
-    limit = 2 ** MAX_BITS.get(modulus.dtype, 53)  # every integer up to it, not all of those above
-    if peak > limit:
-        warnings.warn(
-            f"restored counts reach {peak:.0f}, beyond what {modulus.dtype} holds exactly ({limit}); "
-            "use float32 or float64 for exact counts",
-            stacklevel=3,
-        )
-    out = restored.reshape(modulus.shape).to(device=modulus.device)
+    _warn_inexact(restored, peak)
+    out = _like(restored.reshape(modulus.shape).to(device=modulus.device), modulus)
     infos = [i for _, i in results]
 
     def grid(key: str, dtype: torch.dtype) -> torch.Tensor:
@@ -113,7 +139,7 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     )
     if infos and all("confidence" in i for i in infos):
         maps = torch.from_numpy(np.stack([i["confidence"] for i in infos]))
-        info.confidence = maps.to(dtype=modulus.dtype).reshape(modulus.shape).to(device=modulus.device)
+        info.confidence = _like(maps.to(dtype=modulus.dtype).reshape(modulus.shape).to(device=modulus.device), modulus)
     return out, info
 
 
@@ -277,13 +303,16 @@ def unwrap_single(
             channels of an image share their weights; False: each channel alone).
 
     Returns:
-        The restored counts ``I_m + k 2**bits``: same shape, dtype and device as ``modulus``; with
-        ``return_info=True`` a tuple ``(restored, info)``.
+        The restored counts ``I_m + k 2**bits``: same shape, dtype, device and memory format (channels_last
+        included) as ``modulus``; with ``return_info=True`` a tuple ``(restored, info)``. Counts beyond the integers
+        the dtype holds exactly are rounded, with a warning that says which dtype would hold them (float16 counts
+        above 65504 become inf, and the warning counts them).
 
     Raises:
         TypeError: ``modulus`` is not a floating tensor, or an argument has the wrong type.
         ValueError: values outside ``[0, 2**bits)``, NaN or non-integer values, an empty image, a wrong number
-            of dimensions, or an invalid setting.
+            of dimensions, a modulus on the ``meta`` device (no values to solve, with the checks off too), or an
+            invalid setting.
 
     Example:
         >>> ramp = torch.arange(0.0, 1200.0, 40.0).reshape(1, -1).repeat(4, 1)  # counts 0 .. 1160
@@ -316,7 +345,7 @@ class SingleShotUnwrap(nn.Module):
 
     Shape:
         - Input: (B, C, H, W), (C, H, W) or (H, W).
-        - Output: same as the input.
+        - Output: same as the input, in its memory format (channels_last included).
 
     Example:
         >>> unwrap = SingleShotUnwrap(bits=8)
