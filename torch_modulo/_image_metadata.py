@@ -18,6 +18,8 @@ import torch
 
 __all__ = [
     "BLOB_KEY",
+    "COLORSPACE_ATTRIBUTE",
+    "DATA_COLORSPACE",
     "METADATA_ATTRIBUTE",
     "RESERVED",
     "check_metadata",
@@ -31,6 +33,12 @@ __all__ = [
 #: The JSON attribute that holds the metadata dict (EXR and PNG); TIFF keeps it in ``ImageDescription``.
 METADATA_ATTRIBUTE = "torch_modulo:metadata"
 BLOB_KEY = "torch_modulo_metadata"
+
+#: The text attribute that records the colour space of a PNG written with raw integers (:data:`DATA_COLORSPACE`):
+#: such a file has no colour chunks, and OpenImageIO reports every PNG without them as sRGB.
+COLORSPACE_ATTRIBUTE = "torch_modulo:colorspace"
+#: OpenImageIO's name for samples that are data, not colours (``oiio:ColorSpace``).
+DATA_COLORSPACE = "Raw"
 
 
 #: Attribute names OpenImageIO or the format interpret; metadata keys with these names (or with a ':') are kept
@@ -85,12 +93,18 @@ def decode_blob(text: object) -> dict[str, Any] | None:
 
 
 def metadata_from_spec(spec: oiio.ImageSpec) -> dict[str, Any]:
+    """The file's attributes overlaid with the stored dict; a data tag (:data:`COLORSPACE_ATTRIBUTE`) becomes
+    ``oiio:ColorSpace``."""
     native: dict[str, Any] = {}
     stored: dict[str, Any] | None = None
+    colorspace: str | None = None
     for attribute in spec.extra_attribs:
         name = attribute.name
         if name == METADATA_ATTRIBUTE:
             stored = decode_blob(attribute.value)
+            continue
+        if name == COLORSPACE_ATTRIBUTE:
+            colorspace = attribute.value if isinstance(attribute.value, str) else None
             continue
         if name == "ImageDescription":
             blob = decode_blob(attribute.value)
@@ -98,6 +112,8 @@ def metadata_from_spec(spec: oiio.ImageSpec) -> dict[str, Any]:
                 stored = stored if stored is not None else blob
                 continue
         native[name] = to_python(attribute.value)
+    if colorspace is not None:
+        native["oiio:ColorSpace"] = colorspace
     if stored is not None:
         native.update(stored)
     return native

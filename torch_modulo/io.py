@@ -1,6 +1,7 @@
 """Image files through OpenImageIO: EXR, Radiance HDR, PFM, 8/16-bit PNG and TIFF, with metadata.
 
-Images are float tensors (C, H, W); (H, W) is accepted for writing and stored as one channel.
+Images are float tensors (C, H, W); (H, W) is accepted for writing and stored as one channel, and so is a batch of
+one image, (1, C, H, W).
 
 How values are stored
     ======================  ==========================  =========================================================
@@ -22,10 +23,37 @@ integers 0..4095 written to a 16-bit PNG or TIFF reads back as exactly those int
 narrower than their container (a 12-bit TIFF, a 1/2/4-bit PNG) also read as the integers stored (OpenImageIO
 stretches them to the container's range; :func:`read_image` shifts them back). Writing refuses NaN,
 non-integers and values outside ``[0, 2**8 - 1]`` or ``[0, 2**16 - 1]`` rather than rounding or clipping them.
-Display images in [0, 1] (tone-mapped results) are written with ``normalized=True``, which stores
-``round(x * 255)`` (or ``* 65535``); ``read_image(..., normalized=True)`` divides by the same maximum. Reading an
-integer file returns its raw values unless ``normalized=True`` is given, whatever wrote it. Without ``dtype``,
-PNG and TIFF are written as 8-bit unless ``metadata["bits"]`` is between 9 and 16, in which case 16-bit.
+Display images in [0, 1] (tone-mapped results) are stored normalised, ``round(x * 255)`` (or ``* 65535``);
+``read_image(..., normalized=True)`` divides by the same maximum. Reading an integer file returns its raw values
+unless ``normalized=True`` is given, whatever wrote it. Without ``dtype``, PNG and TIFF are written as 8-bit unless
+``metadata["bits"]`` is between 9 and 16, in which case 16-bit.
+
+Raw or normalised (``normalized=None``, the default, decides from the image)
+    ==========================================================  ===============================================
+    image                                                       stored as
+    ==========================================================  ===============================================
+    ``metadata`` has ``"bits"`` (a sensor's frame)              raw integers, always
+    integer dtype (``torch.uint8``, ``torch.int64``, ...)       raw integers
+    floating, every value an integer                            raw integers (a float tensor of counts)
+    floating, some value not an integer, all in [0, 1]          normalised (``round(x * 255)``), as torchvision
+                                                                and scikit-image store float images
+    floating, some value not an integer, some outside [0, 1]    refused (``ValueError``)
+    ==========================================================  ===============================================
+
+    Why integers win: every count the capture models, the sensors and :func:`~torch_modulo.sensors.write_frames`
+    produce is a float tensor of integers, and a dark frame can hold nothing but 0 and 1. A rule that took every
+    float image in [0, 1] as a display image would silently store such a frame as 0 and 255, and the frame would
+    decode to a radiance 255 times too bright. Stored raw, an image of integers reads back exactly with
+    :func:`read_image`'s default. The one image both rules fit, a float image holding only 0 and 1 with no
+    ``"bits"`` in its metadata (a black-and-white mask, or a dark frame written by hand), is stored raw with a
+    warning that names ``normalized=True``. Pass ``normalized=True`` or ``normalized=False`` to decide yourself and
+    silence the rule.
+
+Colour
+    A PNG written with raw integers is tagged as data: it holds none of the chunks (``sRGB``, ``gAMA``, ``cHRM``)
+    that tell a viewer to treat its samples as sRGB colours, and :func:`read_metadata` reports
+    ``oiio:ColorSpace`` as ``"Raw"`` (OpenImageIO's name for data; without the tag it reports sRGB for every PNG).
+    A normalised PNG keeps OpenImageIO's sRGB chunks: it is an image for display.
 
 Metadata
     A metadata dict (string keys; values that JSON can hold: numbers, strings, booleans, None, lists and dicts of
@@ -73,6 +101,8 @@ from torch_modulo._atomic import atomic_file
 from torch_modulo._checks import check_flag
 from torch_modulo._image_metadata import (
     BLOB_KEY,
+    COLORSPACE_ATTRIBUTE,
+    DATA_COLORSPACE,
     METADATA_ATTRIBUTE,
     check_metadata,
     metadata_from_spec,
@@ -207,12 +237,46 @@ def _pixels(image: torch.Tensor, path: Path) -> torch.Tensor:
         raise TypeError(f"image to write to {path} must hold real numbers; got dtype {image.dtype}")
     if image.dim() == 2:
         image = image.unsqueeze(0)
+    if image.dim() == 4 and image.shape[0] == 1:
+        image = image[0]
+    if image.dim() == 4:
+        raise ValueError(
+            f"image to write to {path} must be one image: (C, H, W), (H, W) or a batch of one (1, C, H, W); got a "
+            f"batch of {image.shape[0]}, shape {tuple(image.shape)} (write one file per image)"
+        )
     if image.dim() != 3:
-        raise ValueError(f"image to write to {path} must have shape (C, H, W) or (H, W); got {tuple(image.shape)}")
+        raise ValueError(
+            f"image to write to {path} must have shape (C, H, W), (H, W) or (1, C, H, W); got {tuple(image.shape)}"
+        )
     c, h, w = image.shape
     if c < 1 or h < 1 or w < 1:
         raise ValueError(f"image to write to {path} must be non-empty; got shape {tuple(image.shape)}")
     return image.detach().to(device="cpu", dtype=torch.float64).permute(1, 2, 0).contiguous()
+
+
+def _is_normalized(
+    pixels: torch.Tensor, floating: bool, metadata: Mapping[str, Any], normalized: bool | None, path: Path
+) -> bool:
+    """Whether to store ``round(x * maximum)``: the rule of ``normalized=None`` (module docstring), or the caller's."""
+    if normalized is not None:
+        return normalized
+    if "bits" in metadata or not floating:
+        return False
+    if not bool(torch.isfinite(pixels).all()):
+        return False  # integer formats refuse NaN and Inf either way
+    integers = bool((pixels == torch.floor(pixels)).all())
+    lo, hi = float(pixels.min()), float(pixels.max())
+    if not integers:
+        return lo >= 0 and hi <= 1
+    if lo >= 0 and hi == 1:
+        warnings.warn(
+            f"writing {path}: a float image holding only 0 and 1 is stored as the raw integers 0 and 1 (a dark "
+            "frame of counts); pass normalized=True for a display image in [0, 1] (stored as 0 and the maximum), "
+            "or normalized=False to say it holds counts",
+            UserWarning,
+            stacklevel=3,
+        )
+    return False
 
 
 def _encode(pixels: torch.Tensor, kind: str, fmt: _Format, normalized: bool, path: Path) -> np.ndarray:
@@ -424,11 +488,12 @@ def write_image(
     metadata: Mapping[str, Any] | None = None,
     *,
     dtype: str | torch.dtype | None = None,
-    normalized: bool = False,
+    normalized: bool | None = None,
 ) -> Path:
-    """Write a (C, H, W) or (H, W) image atomically; the format follows the extension.
+    """Write a (C, H, W), (H, W) or (1, C, H, W) image atomically; the format follows the extension.
 
-    See the module docstring for the formats, how values are stored and which formats keep metadata.
+    See the module docstring for the formats, how values are stored (raw integers or normalised, and how
+    ``normalized=None`` chooses) and which formats keep metadata.
 
     Args:
         path: destination; its extension picks the format (.exr, .hdr, .pfm, .png, .tif, .tiff). The folder must
@@ -438,19 +503,25 @@ def write_image(
         dtype: sample type: ``"float"``/``"half"`` (EXR), ``"uint8"``/``"uint16"`` (PNG, TIFF), ``"float"``
             (TIFF, HDR, PFM), or the matching torch dtype. Default: float for EXR/HDR/PFM; for PNG/TIFF 8-bit,
             or 16-bit when ``metadata["bits"]`` is 9 to 16.
-        normalized: for integer formats, store ``round(image * maximum)`` of an image in [0, 1] instead of raw
-            integers. Ignored by float formats.
+        normalized: for integer formats, ``True`` stores ``round(image * maximum)`` of an image in [0, 1],
+            ``False`` stores raw integers, and ``None`` (default) chooses: raw integers for a sensor's frame
+            (``"bits"`` in ``metadata``), an integer tensor or a float tensor of integers; normalised for a float
+            image in [0, 1] that holds other values. Ignored by float formats.
 
     Returns:
         The path written.
 
     Raises:
         TypeError: ``image`` is not a real tensor, or metadata holds a value that cannot be stored.
-        ValueError: unsupported extension or dtype, wrong shape or channel count for the format, NaN/Inf or
-            non-integers or values out of range for an integer format, negative values for HDR, magnitudes beyond
-            the half-float range.
+        ValueError: unsupported extension or dtype, wrong shape (a batch of more than one image) or channel count
+            for the format, NaN/Inf or non-integers or values out of range for an integer format, negative values
+            for HDR, magnitudes beyond the half-float range.
         FileNotFoundError: the destination folder does not exist.
         OSError: OpenImageIO failed to write.
+
+    Warns:
+        UserWarning: with ``normalized=None``, a float image that holds only 0 and 1 (and no ``"bits"`` in its
+            metadata) for an integer format: it is stored as the raw integers 0 and 1.
 
     Example:
         >>> import os, tempfile
@@ -461,16 +532,18 @@ def write_image(
         True
     """
     path = _path(path)
-    normalized = check_flag(normalized, "normalized")
+    if normalized is not None:
+        normalized = check_flag(normalized, "normalized")
     fmt = _format_for_writing(path)
     meta = check_metadata(metadata)
     kind = _resolve_dtype(dtype, fmt, path, meta)
     pixels = _pixels(image, path)
+    scaled = kind in _INT_MAX and _is_normalized(pixels, image.is_floating_point(), meta, normalized, path)
     h, w, c = pixels.shape
     if fmt.channels is not None and c not in fmt.channels:
         allowed = " or ".join(str(n) for n in fmt.channels)
         raise ValueError(f"cannot write {path}: {fmt.name} stores {allowed} channels; got {c} (shape (C, H, W))")
-    array = _encode(pixels, kind, fmt, normalized, path)
+    array = _encode(pixels, kind, fmt, scaled, path)
     folder = path.parent
     if not folder.is_dir():
         raise FileNotFoundError(errno.ENOENT, "destination folder does not exist", str(folder))
@@ -480,6 +553,11 @@ def write_image(
     if names is not None:
         spec.channelnames = tuple(names)
     spec.attribute("oiio:UnassociatedAlpha", 1)
+    if fmt.name == "PNG" and not scaled:
+        # Raw integers are data, not sRGB colours: "Raw" keeps OpenImageIO from writing the sRGB/gAMA/cHRM chunks,
+        # and the text attribute lets read_metadata say so (OpenImageIO reports sRGB for any untagged PNG).
+        spec.attribute("oiio:ColorSpace", DATA_COLORSPACE)
+        spec.attribute(COLORSPACE_ATTRIBUTE, DATA_COLORSPACE)
     if meta:
         blob = json.dumps({BLOB_KEY: meta}, allow_nan=True)
         if fmt.metadata == "attribute":

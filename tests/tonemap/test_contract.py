@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 import torch
 from tonemap_cases import GLOBAL, LUMINANCE_BASED, OPERATORS
 from tonemap_cases import hdr as _hdr
 
+import torch_modulo as tm
 import torch_modulo.tonemap as tmo
 from torch_modulo.tonemap import (
     tonemap_clahe,
@@ -164,3 +167,56 @@ class TestFlagsAreBools:
     def test_numpy_bool_is_a_bool(self) -> None:
         x = _hdr((1, 3, 8, 8))
         assert torch.equal(tonemap_reinhard(x, srgb=np.bool_(True)), tonemap_reinhard(x, srgb=True))
+
+
+class TestMemoryFormat:
+    """Regression: channels-last input came back in the default layout; the result keeps the input's memory format
+    (the output has the input's shape), with the same values."""
+
+    CL = torch.channels_last
+
+    @pytest.mark.parametrize("name", list(OPERATORS))
+    @pytest.mark.parametrize("shape", [(2, 3, 12, 10), (3, 3, 64, 611)])  # the second spans several CPU chunks
+    @pytest.mark.parametrize("grad", [False, True], ids=["chunked", "autograd"])
+    def test_channels_last_kept(self, name: str, shape: tuple[int, ...], grad: bool, dtype: torch.dtype) -> None:
+        x = _hdr(shape, seed=4, stops=20, dtype=dtype)
+        xl = x.contiguous(memory_format=self.CL).requires_grad_(grad)
+        out = OPERATORS[name](xl)
+        assert out.is_contiguous(memory_format=self.CL) and not out.is_contiguous()
+        assert torch.equal(out.detach(), OPERATORS[name](x.clone().requires_grad_(grad)).detach())
+        if grad:
+            out.sum().backward()
+            assert xl.grad is not None and torch.isfinite(xl.grad).all()
+
+    @pytest.mark.parametrize(
+        ("fn", "module"),
+        [
+            (tonemap_reinhard, tmo.ReinhardToneMap),
+            (tonemap_histogram, tmo.HistogramToneMap),
+            (tonemap_log, tmo.LogToneMap),
+            (tonemap_gamma, tmo.GammaToneMap),
+        ],
+    )
+    def test_srgb_and_modules_keep_channels_last(
+        self, fn: Callable[..., torch.Tensor], module: Callable[[], torch.nn.Module]
+    ) -> None:
+        x = _hdr((2, 3, 9, 7)).contiguous(memory_format=self.CL)
+        assert fn(x, srgb=True).is_contiguous(memory_format=self.CL)
+        assert module()(x).is_contiguous(memory_format=self.CL)
+
+    @pytest.mark.parametrize("module", [tmo.ReinhardToneMap, tmo.LogToneMap, tmo.GammaToneMap])
+    def test_compiled_keeps_channels_last(self, module: Callable[[], torch.nn.Module]) -> None:
+        layer = module()
+        x = _hdr((2, 3, 9, 7), dtype=torch.float32).contiguous(memory_format=self.CL)
+        with tm.validation(False):
+            out = torch.compile(layer, fullgraph=True, backend="eager")(x)
+        assert out.is_contiguous(memory_format=self.CL)
+        torch.testing.assert_close(out, layer(x))
+
+    @pytest.mark.parametrize("name", list(OPERATORS))
+    def test_default_layout_kept(self, name: str) -> None:
+        x = _hdr((2, 3, 12, 10))
+        assert OPERATORS[name](x).is_contiguous()
+        grey = _hdr((2, 1, 12, 10)).contiguous(memory_format=self.CL)  # one channel: both layouts at once
+        assert OPERATORS[name](grey).is_contiguous()
+        assert OPERATORS[name](x[:0].contiguous(memory_format=self.CL)).shape == (0, 3, 12, 10)

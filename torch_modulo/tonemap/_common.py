@@ -175,9 +175,22 @@ def img(v: torch.Tensor) -> torch.Tensor:
     return v.reshape(-1, 1, 1, 1)
 
 
-def restore(out: torch.Tensor, shape: torch.Size) -> torch.Tensor:
-    """Give a (B, C, H, W) result the caller's original shape."""
-    return out.reshape(shape)
+def channels_last(image: torch.Tensor) -> bool:
+    """Whether a (B, C, H, W) tensor's images are stored channels last (``torch.channels_last``): the channels of a
+    pixel adjacent in memory, and not also in the default layout (one channel, or one pixel, is both)."""
+    if image.dim() != 4 or image.shape[0] == 0:
+        return False
+    first = image[0]
+    return not first.is_contiguous() and first.permute(1, 2, 0).is_contiguous()
+
+
+def restore(out: torch.Tensor, shape: torch.Size, like: torch.Tensor | None = None) -> torch.Tensor:
+    """Give a (B, C, H, W) result the caller's original shape, and the memory format of ``like`` (the input) when
+    its images are stored channels last."""
+    out = out.reshape(shape)
+    if like is not None and channels_last(like):
+        return out.contiguous(memory_format=torch.channels_last)
+    return out
 
 
 #: Range of ``exposure`` (in stops) for the gamma and logarithmic mappings: ``2**exposure`` is then a normal

@@ -62,7 +62,7 @@ def tonemap_clahe(
     srgb = check_flag(srgb, "srgb")
     x, shape = as_batch(hdr)
     if x.numel() == 0:
-        return restore(x.clone(), shape)
+        return restore(x.clone(), shape, hdr)
     h, w = x.shape[-2:]
     if h <= grid[0] or w <= grid[1]:
         raise ValueError(
@@ -72,7 +72,7 @@ def tonemap_clahe(
     # Half precision cannot place log luminance on the 256 equalisation levels: widen to float32.
     src = widened(x if needs_grad(x) else x.detach())
     out = encode(_clahe(src, clip, grid, differentiable), srgb)
-    return restore(out.to(x.dtype), shape)
+    return restore(out.to(x.dtype), shape, hdr)
 
 
 def _clahe(src: torch.Tensor, clip: float, grid: tuple[int, int], differentiable: bool) -> torch.Tensor:

@@ -76,7 +76,7 @@ def tonemap_gamma(
     srgb = check_flag(srgb, "srgb")
     given, shape = as_batch(hdr)
     if given.numel() == 0:
-        return restore(given.clone(), shape)
+        return restore(given.clone(), shape, hdr)
     x = widened(given)  # float16's range does not hold the scale of dim radiance (2**17 for 2**-17)
     # 2**exposure is a normal float64; in the work dtype it may overflow, so cap it (and its quotient by the
     # percentile) at the dtype's largest value: any radiance it multiplies then still clips to 1 (float32 holds
@@ -97,7 +97,7 @@ def tonemap_gamma(
         if inv_gamma != 1.0:
             # d/dx x^(1/g) is infinite at 0 for g > 1: keep the gradient finite there.
             out = torch.where(out > 0, out.clamp_min(torch.finfo(x.dtype).tiny) ** inv_gamma, out)
-    return restore(encode(out, srgb).to(given.dtype), shape)
+    return restore(encode(out, srgb).to(given.dtype), shape, hdr)
 
 
 def _gamma_chunked(x: torch.Tensor, scale: torch.Tensor, inv_gamma: float) -> torch.Tensor:

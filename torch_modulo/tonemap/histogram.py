@@ -224,7 +224,7 @@ def tonemap_histogram(
     srgb = check_flag(srgb, "srgb")
     x, shape = as_batch(hdr)
     if x.numel() == 0:
-        return restore(x.clone(), shape)
+        return restore(x.clone(), shape, hdr)
     b, _, h, w = x.shape
     grad = needs_grad(x)
     # In float16 the ratio expm1(span P) / Y overflows 65504 for dim pixels (and 0 * inf is NaN in a black
@@ -260,7 +260,7 @@ def tonemap_histogram(
         p = torch.gather(cumf, 1, i) + (u - i.to(u.dtype)) * torch.gather(slope, 1, i)
         ratio = c * torch.expm1(span * p) / y
         out = (src * ratio.reshape(b, 1, h, w)).clamp(0.0, 1.0)
-    return restore(encode(out, srgb).to(x.dtype), shape)
+    return restore(encode(out, srgb).to(x.dtype), shape, hdr)
 
 
 class HistogramToneMap(nn.Module):

@@ -130,7 +130,7 @@ def tonemap_log(
     srgb = check_flag(srgb, "srgb")
     x, shape = as_batch(hdr)
     if x.numel() == 0:
-        return restore(x.clone(), shape)
+        return restore(x.clone(), shape, hdr)
     s = 2.0**exposure
     qs, ks = q * s, k * s
 
@@ -142,7 +142,7 @@ def tonemap_log(
         # Some images need float64 and others not: map them one at a time, so that a batch gives the same result
         # as its images alone (one image would otherwise move the whole batch to float64).
         parts = [tonemap_log(x[i : i + 1], q, k, exposure, srgb=srgb) for i in range(x.shape[0])]
-        return restore(torch.cat(parts), shape)
+        return restore(torch.cat(parts), shape, hdr)
 
     if chunked(x):
         y_max, _ = luminance_stats_chunked(x, None)
@@ -160,7 +160,7 @@ def tonemap_log(
                 ld = torch.mul(y, qs, out=buf[0]).log1p_()
                 return ld.div_(y).mul_(inv_col)
 
-            return restore(encode(map_chunked(x, kernel, 1), srgb), shape)
+            return restore(encode(map_chunked(x, kernel, 1), srgb), shape, hdr)
     if x.dtype == torch.float64 or x.device.type == "mps":
         out = _log_map(x, qs, ks)
     elif torch.compiler.is_compiling():
@@ -171,7 +171,7 @@ def tonemap_log(
             return one_by_one()
         # Where the scaled luminance leaves the input dtype's range, map in float64.
         out = _log_map(x, qs, ks) if all(fit) else _log_map(x.double(), qs, ks).to(x.dtype)
-    return restore(encode(out, srgb), shape)
+    return restore(encode(out, srgb), shape, hdr)
 
 
 class LogToneMap(nn.Module):

@@ -73,7 +73,7 @@ def tonemap_reinhard(
     srgb = check_flag(srgb, "srgb")
     x, shape = as_batch(hdr)
     if x.numel() == 0:
-        return restore(x.clone(), shape)
+        return restore(x.clone(), shape, hdr)
     src = widened(x)  # float16's range and precision do not hold the scale and its products
     h, w = src.shape[-2:]
     # Ld / Lw = s (1 + L / Lwhite²) / (1 + L) with L = s Lw, s = a / L̄w, written (s + (Lw c) c) / (1 + s Lw) with
@@ -97,7 +97,7 @@ def tonemap_reinhard(
         c = img(scale * _inverse_white(white, y.amax(dim=(1, 2, 3)) * scale))
         ratio = (img(scale) + y * c * c) / (1.0 + y * img(scale))
         out = (src * ratio).clamp(0.0, 1.0)
-    return restore(encode(out, srgb).to(x.dtype), shape)
+    return restore(encode(out, srgb).to(x.dtype), shape, hdr)
 
 
 def _inverse_white(white: float | None, scaled_max: torch.Tensor) -> torch.Tensor:
