@@ -254,3 +254,65 @@ class TestPickleAndDataLoader:
             assert isinstance(stack, tm.ExposureStack)
             assert stack.moduli.shape == (2, 3, 3, 4, 4) and stack.exposures.shape == (2, 3)
             assert torch.equal(unwrap(stack), _functional(radiance, TAUS, 8))
+
+
+class TestChannelsLast:
+    """Regression: channels-last radiance came back from capture -> unwrap in the default layout. Every layer keeps
+    the memory format where its output has the input's shape; the stack's frames keep it, and so the decoded image."""
+
+    CL = torch.channels_last
+
+    @staticmethod
+    def _frames_channels_last(moduli: torch.Tensor) -> bool:
+        frame = moduli[0, 0]
+        return frame.permute(1, 2, 0).is_contiguous() and not frame.is_contiguous()
+
+    @pytest.mark.parametrize("shape", [(2, 3, 6, 5), (2, 3, 40, CPU_CHUNK // 60)])  # the second spans CPU chunks
+    def test_capture_layers_keep_channels_last(self, shape: tuple[int, ...]) -> None:
+        x = _radiance(shape, torch.device("cpu"), torch.float32).contiguous(memory_format=self.CL)
+        for layer in (tm.ModuloCapture(4.0, 8), tm.IntensityCapture(4.0, 8)):
+            assert layer(x).is_contiguous(memory_format=self.CL)
+        assert tm.ModuloWrap(8)(torch.floor(x * 300)).is_contiguous(memory_format=self.CL)
+        assert self._frames_channels_last(tm.MultiExposureCapture(TAUS, 8)(x).moduli)
+
+    @pytest.mark.parametrize(
+        ("shape", "noise"),
+        [
+            ((1, 3, 6, 5), None),
+            ((2, 3, 6, 5), None),
+            ((2, 3, 40, CPU_CHUNK // 60), None),  # spans the CPU chunks
+            ((2, 3, 6, 5), "photon-counting"),
+        ],
+    )
+    def test_chain_keeps_channels_last(self, shape: tuple[int, ...], noise: str | None) -> None:
+        x = _radiance(shape, torch.device("cpu"), torch.float32)
+        taus = TAUS if noise is None else [1.0, 4.0, 16.0]  # ratios the noise model decodes without a warning
+        chain = nn.Sequential(tm.MultiExposureCapture(taus, 8), tm.MultiExposureUnwrap(8, noise=noise))
+        out = chain(x.contiguous(memory_format=self.CL))
+        assert out.is_contiguous(memory_format=self.CL) and not out.is_contiguous()
+        assert torch.equal(out, chain(x))
+
+    def test_layer_with_gradients_and_per_batch_exposures(self) -> None:
+        x = _radiance((2, 3, 4, 5), torch.device("cpu"), torch.float64).contiguous(memory_format=self.CL)
+        stack = tm.MultiExposureCapture(TAUS, 8, straight_through=True)(x.requires_grad_(True))
+        out = tm.MultiExposureUnwrap(8)(stack)
+        assert out.is_contiguous(memory_format=self.CL)
+        assert torch.equal(out, tm.unwrap_multi(stack.moduli, stack.exposures, 8))
+        taus = torch.tensor([[1.0, 16.0, 256.0], [2.0, 32.0, 512.0]], dtype=torch.float64)
+        moduli = tm.capture_stack(x.detach(), taus, 8)
+        assert tm.MultiExposureUnwrap(8)(moduli, taus).is_contiguous(memory_format=self.CL)
+
+    def test_default_layout_kept(self) -> None:
+        x = _radiance((2, 3, 6, 5), torch.device("cpu"), torch.float32)
+        assert tm.MultiExposureUnwrap(8)(tm.MultiExposureCapture(TAUS, 8)(x)).is_contiguous()
+        grey = _radiance((2, 1, 6, 5), torch.device("cpu"), torch.float32).contiguous(memory_format=self.CL)
+        assert tm.MultiExposureUnwrap(8)(tm.MultiExposureCapture(TAUS, 8)(grey)).is_contiguous()
+        unbatched = _radiance((3, 6, 5), torch.device("cpu"), torch.float32)
+        assert tm.MultiExposureUnwrap(8)(tm.MultiExposureCapture(TAUS, 8)(unbatched)).shape == (3, 6, 5)
+
+    def test_compiled_chain_keeps_channels_last(self) -> None:
+        x = _radiance((2, 3, 6, 5), torch.device("cpu"), torch.float32).contiguous(memory_format=self.CL)
+        chain = nn.Sequential(tm.MultiExposureCapture(TAUS, 8), tm.MultiExposureUnwrap(8))
+        with tm.validation(False):
+            out = torch.compile(chain, fullgraph=True, backend="eager")(x)
+        assert out.is_contiguous(memory_format=self.CL) and torch.equal(out, chain(x))

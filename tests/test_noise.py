@@ -53,3 +53,19 @@ class TestNoiseModel:
             as_noise_model(value)
         with pytest.raises(error, match=match):
             SimulatedModuloSensor(8, value)  # type: ignore[arg-type]
+
+    @pytest.mark.parametrize(
+        ("kwargs", "match"),
+        [
+            ({"electrons_per_count": 1e-300}, r"electrons_per_count=1e-300 .* overflow"),
+            ({"electrons_per_count": 1e-300, "read_noise": 0.0}, r"electrons_per_count=1e-300 .* overflow"),
+            ({"electrons_per_count": 1e-200, "read_noise": 1e120}, r"read_noise=1e\+120 .* overflow"),
+            ({"electrons_per_count": 1e-10, "dark_current": 1e300}, r"dark_current=1e\+300 .* overflow"),
+        ],
+    )
+    def test_regression_models_whose_variance_overflows(self, kwargs: dict, match: str) -> None:
+        # NoiseModel(electrons_per_count=1e-300) was accepted; unwrap_multi and plan_exposures then raised
+        # OverflowError from count_variance.
+        with pytest.raises(ValueError, match=match):
+            NoiseModel(**kwargs)
+        NoiseModel(electrons_per_count=0.5, read_noise=1.5)  # sub-electron charge quanta stay accepted

@@ -19,6 +19,7 @@ enter the decoding.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar, overload
 
@@ -59,7 +60,8 @@ class NoiseModel:
 
     Raises:
         TypeError: a parameter is not a number (or ``shot_noise`` not a bool).
-        ValueError: a parameter is negative or not finite, or ``electrons_per_count`` is 0.
+        ValueError: a parameter is negative or not finite, ``electrons_per_count`` is 0, or the model's count
+            variance (for counts up to ``2**53``) or dark counts per unit exposure are beyond float64's range.
 
     Example:
         >>> NoiseModel(read_noise=2.0).is_noiseless
@@ -87,6 +89,17 @@ class NoiseModel:
             object.__setattr__(self, name, check_real(getattr(self, name), name, 0.0))
         check_flag(self.shot_noise, "shot_noise")
         object.__setattr__(self, "shot_noise", bool(self.shot_noise))
+        # The decoders and the planner evaluate the count variance for counts up to a 53-bit counter's: refuse a
+        # model whose variance (or dark counts) is beyond float64's range there, rather than overflow later.
+        read = self.read_noise / q
+        variance = 2.0**53 / q + read * read  # inf (not OverflowError) past float64's range
+        if not (math.isfinite(variance) and math.isfinite(self.dark_current / q)):
+            raise ValueError(
+                f"electrons_per_count={q!r} with read_noise={self.read_noise!r} and dark_current={self.dark_current!r} "
+                "makes the count variance (counts / electrons_per_count + (read_noise / electrons_per_count)^2) or "
+                "the dark counts (dark_current / electrons_per_count) overflow float64; use a larger "
+                "electrons_per_count (or the model's values in other units)"
+            )
 
     @classmethod
     def preset(cls, name: str) -> NoiseModel:

@@ -132,3 +132,74 @@ class TestNoisyDecoding:
             tm.unwrap_multi(moduli, [1.0, 2.0], 8, noise=PHOTON, sigmas=0)
         with pytest.raises(TypeError, match="return_counts must be a bool; got 'no'"):
             tm.unwrap_multi(moduli, [1.0, 2.0], 8, return_counts="no")
+
+
+class TestNoisyDecodingExtremes:
+    @pytest.mark.parametrize("unit", [1e155, 1e-300, 2.0**-1000])
+    def test_regression_exposures_in_extreme_units_are_finite(self, unit: float) -> None:
+        # In units of 1e155 the weights tau^2 overflowed to inf, in units of 1e-300 they underflowed to 0: all NaN,
+        # while the noise-free path was finite. The same frames decode to the same radiance in any unit.
+        radiance = _scene(7, (1, 1, 8, 8))
+        taus = _plan(NoiseModel.preset("q16"))
+        moduli = SimulatedModuloSensor(8, "q16", seed=2)(radiance, taus).moduli
+        reference, variance = tm.unwrap_multi(moduli, taus, 8, noise="q16", return_variance=True)
+        scaled = tm.unwrap_multi(moduli, [t * unit for t in taus], 8, noise="q16")
+        assert bool(torch.isfinite(scaled).all())
+        assert torch.allclose(scaled * unit, reference, rtol=1e-12, atol=0.0)
+        counts = tm.unwrap_multi(moduli, [t * unit for t in taus], 8, noise="q16", return_counts=True)
+        assert torch.allclose(counts, reference * taus[-1], rtol=1e-12, atol=0.0)
+        if unit > 1:  # the variance, 1 / unit^2 of the reference's, is within float64's range only here
+            _, var = tm.unwrap_multi(moduli, [t * unit for t in taus], 8, noise="q16", return_variance=True)
+            assert torch.allclose(var * unit * unit, variance, rtol=1e-9, atol=0.0)
+
+    def test_power_of_two_units_round_nothing(self) -> None:
+        # The decoder works in a power-of-two unit near the exposures' middle: results scale exactly with the unit.
+        radiance = _scene(9, (1, 1, 8, 8))
+        taus = _plan(PHOTON)
+        moduli = SimulatedModuloSensor(8, PHOTON, seed=2)(radiance, taus).moduli
+        reference = tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)
+        for k in (-60, 7, 60):
+            scaled = tm.unwrap_multi(moduli, [t * 2.0**k for t in taus], 8, noise=PHOTON)
+            assert torch.equal(scaled * 2.0**k, reference)
+
+    def test_regression_extreme_units_in_the_noise_aware_merge(self) -> None:
+        radiance = _scene(8, (1, 1, 8, 8)) / 2**8
+        taus = [1.0, 4.0, 16.0, 64.0]
+        frames = SimulatedIntensitySensor(8, "q16", seed=2)(radiance, taus).frames
+        reference = tm.merge_intensity(frames, taus, 8, noise="q16")
+        for unit in (1e155, 1e-300):
+            scaled = tm.merge_intensity(frames, [t * unit for t in taus], 8, noise="q16")
+            assert torch.allclose(scaled * unit, reference, rtol=1e-12, atol=0.0)
+
+    def test_regression_dark_counts_that_roll_over_the_shortest_frame(self) -> None:
+        # 300 dark counts at the shortest exposure: every pixel of it rolled over, and the decoder returned zeros
+        # with only the unsafe-ratio warning; plan_exposures refuses the same model. Both now say the same.
+        noise = NoiseModel(dark_current=300.0)
+        frames = SimulatedModuloSensor(8, noise, seed=0)(torch.full((1, 1, 4, 4), 20.0, dtype=torch.float64), [1, 4])
+        message = r"dark counts of the shortest exposure 1 \(300 counts\) leave no count below the rollover at bits=8"
+        with pytest.raises(ValueError, match=message):
+            tm.unwrap_multi(frames.moduli, [1.0, 4.0], 8, noise=noise)
+        with pytest.raises(ValueError, match=message.replace("exposure 1", "exposure base=1")):
+            tm.plan_exposures(10, 8, noise=noise)
+        with pytest.warns(UserWarning, match=r"dark counts of the shortest exposure 0.84 \(252 counts\)"):
+            tm.unwrap_multi(frames.moduli, [0.84, 3.36], 8, noise=noise)  # below the rollover, within 3 sigmas
+
+    @pytest.mark.parametrize(
+        ("moduli_dtype", "taus", "what"),
+        [
+            (torch.float16, [1e-3, 4e-3], "radiance"),
+            (torch.float32, [1e-37, 4e-37], "radiance"),
+            (torch.float32, [1e-20, 4e-20], "variance"),
+        ],
+    )
+    def test_regression_overflow_warns(self, moduli_dtype: torch.dtype, taus: list[float], what: str) -> None:
+        # The noise-free path warned when its result overflowed the moduli's dtype; the noise-aware one did not.
+        moduli = torch.tensor([[[[200.0]]], [[[30.0]]]], dtype=moduli_dtype)
+        match = rf"{what} reaches .*, beyond the range of {moduli_dtype}.*use float64 moduli"
+        with pytest.warns(UserWarning, match=match):
+            tm.unwrap_multi(moduli, taus, 8, noise="q16", return_variance=True)
+        if what == "variance":
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                radiance = tm.unwrap_multi(moduli, taus, 8, noise="q16")  # the variance is not returned: no warning
+            assert bool(torch.isfinite(radiance).all())

@@ -151,3 +151,53 @@ class TestPlanExposuresUnderNoise:
     def test_regression_bad_input_named(self, kwargs: dict, error: type[Exception], match: str) -> None:
         with pytest.raises(error, match=match):
             tm.plan_exposures(**kwargs)
+
+
+class TestPlanExposuresExtremes:
+    @pytest.mark.parametrize("max_ratio", [1 + 1e-5, 1 + 1e-7])
+    def test_regression_noise_free_plans_cap_the_frame_count(self, max_ratio: float) -> None:
+        # max_ratio=1 + 1e-7 built a list of 55 million exposures; the noise-aware planner stops at 256.
+        with pytest.raises(ValueError, match=rf"max_ratio={max_ratio!r} needs \d+ exposures, more than 256"):
+            tm.plan_exposures(16, 8, max_ratio=max_ratio)
+        assert len(tm.plan_exposures(16, 8, max_ratio=1.03)) <= 256
+
+    @pytest.mark.parametrize("base", [1e300, 1e-300])
+    def test_regression_noise_aware_plans_at_extreme_bases(self, base: float) -> None:
+        # base=1e300 raised OverflowError from the planner (tau**2); a plan at base b is the base-1 plan scaled.
+        unit = tm.plan_exposures(16, 8, noise="q16")
+        assert tm.plan_exposures(16, 8, base=base, noise="q16") == pytest.approx([base * t for t in unit], rel=1e-9)
+
+    def test_regression_noise_aware_plans_beyond_float_range_are_refused(self) -> None:
+        # stops - bits + log2(base) passes the range check, but the longest exposure, base 2^14 / 4.9, is beyond it.
+        with pytest.raises(ValueError, match=r"stops=14 from base=8e\+304 .* beyond float64's range"):
+            tm.plan_exposures(14, 4, base=8e304, noise=tm.sensors.NoiseModel(read_noise=2.5))
+
+    @pytest.mark.parametrize("preset", ["photon-counting", "q16", "dfpa", "dark"])
+    @pytest.mark.parametrize("stops", [8, 8.5, 10, 12, 14, 16, 20, 24])
+    @pytest.mark.parametrize("min_ratio", [1.5, 2.0])
+    def test_regression_noise_aware_plans_keep_min_ratio(self, preset: str, stops: float, min_ratio: float) -> None:
+        # plan_exposures(8, 8, noise="dfpa") gave [1, 1.01]; q16 and photon-counting at 8 stops ratios of 1.05 and
+        # 1.21, below the smallest ratio worth a frame.
+        noise = tm.sensors.NoiseModel(dark_current=20.0) if preset == "dark" else tm.sensors.NoiseModel.preset(preset)
+        plan = tm.plan_exposures(stops, 8, noise=noise, min_ratio=min_ratio)
+        ratios = [b / a for a, b in zip(plan, plan[1:], strict=False)]
+        assert all(r >= min_ratio * (1 - 1e-9) for r in ratios), ratios
+        first = tm.multishot.brightest_unwrapped(8, noise, exposure=plan[0])
+        assert plan[-1] >= plan[0] * 2.0**stops / first * (1 - 1e-9)  # E_min still reads a count at the longest
+
+    @pytest.mark.parametrize("preset", ["photon-counting", "q16", "dfpa"])
+    def test_plans_without_short_steps_decode_like_the_oracle(self, preset: str) -> None:
+        # The plans whose short last step was lengthened decode a scene of their stops as well as the longest frame
+        # read with its true rollover count (the same noise draws).
+        noise = tm.sensors.NoiseModel.preset(preset)
+        for stops in (8, 10, 12):
+            plan = tm.plan_exposures(stops, 8, noise=noise)
+            taus = [t / plan[-1] for t in plan]
+            top = tm.multishot.brightest_unwrapped(8, noise) / taus[0]
+            radiance = (torch.exp2(torch.linspace(-stops, 0, 256, dtype=torch.float64)) * top).expand(1, 1, 32, 256)
+            moduli = tm.sensors.SimulatedModuloSensor(8, noise, seed=4)(radiance, taus).moduli
+            counts = tm.sensors.SimulatedIntensitySensor(53, noise, seed=4)(radiance, taus).frames[:, -1]
+            decoded = (tm.unwrap_multi(moduli, taus, 8, noise=noise) - radiance).abs() / radiance
+            oracle = (counts / taus[-1] - radiance).abs() / radiance
+            assert float((decoded > 0.5).double().mean()) <= float((oracle > 0.5).double().mean()) + 1e-3
+            assert float(decoded.median()) <= 1.5 * float(oracle.median())

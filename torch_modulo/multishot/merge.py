@@ -8,7 +8,7 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import check_bits, check_choice, check_modulus
-from torch_modulo.multishot.noisy import weighted_estimate
+from torch_modulo.multishot.noisy import exposure_unit, weighted_estimate
 from torch_modulo.multishot.stack import sort_stack, stack_exposures, wide_dtype
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -87,7 +87,8 @@ def merge_intensity(
 def _merge_noisy(stack: torch.Tensor, tau: torch.Tensor, top: float, noise: NoiseModel) -> torch.Tensor:
     """Inverse-variance merge of the unsaturated frames of a sorted stack (B, M, C, H, W), in the stack's dtype."""
     x = stack
-    t = tau.to(x.dtype).view(*tau.shape, 1, 1, 1)
+    _, down = exposure_unit(tau, x.dtype)  # work in a unit where tau^2 stays in range (no rounding changes)
+    t = (tau.to(x.dtype) * down.unsqueeze(1)).view(*tau.shape, 1, 1, 1)
     usable = x < top
     estimates = (x + 0.5) / t
     # The common radiance for the variances: the longest unsaturated frame's (the shortest's if all saturate).
@@ -95,7 +96,7 @@ def _merge_noisy(stack: torch.Tensor, tau: torch.Tensor, top: float, noise: Nois
     reference = torch.gather(estimates, 1, (last - 1).clamp_min(0))
     merged, total = weighted_estimate(x, usable, t, reference, noise)
     merged = torch.where(total > 0, merged, estimates[:, 0])  # saturated everywhere: a lower bound
-    return (merged - noise.dark_counts).clamp_min(0.0)
+    return (merged * down.view(-1, 1, 1, 1) - noise.dark_counts).clamp_min(0.0)
 
 
 class IntensityMerge(nn.Module):

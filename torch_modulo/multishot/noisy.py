@@ -22,7 +22,7 @@ import torch
 from torch_modulo.multishot.stack import wide_dtype
 from torch_modulo.noise import NoiseModel
 
-__all__ = ["decode_noisy", "weighted_estimate"]
+__all__ = ["decode_noisy", "exposure_unit", "weighted_estimate"]
 
 
 def decode_noisy(
@@ -31,8 +31,13 @@ def decode_noisy(
     bits: int,
     noise: NoiseModel,
     sigmas: float = 3.0,
+    return_counts: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Decode a sorted exposure stack under ``noise``.
+
+    It runs on each item's exposures divided by a power of two near their geometric middle (which changes no
+    rounding; the dark counts follow the unit), so that exposures in any unit within float64's range decode, where
+    ``tau^2`` alone would overflow or underflow.
 
     Args:
         frames: (B, M, n) moduli, exposures sorted ascending, integers in ``[0, 2**bits)``.
@@ -40,15 +45,19 @@ def decode_noisy(
         bits: the bit depth ``N``.
         noise: the sensor's noise model.
         sigmas: ``z``, the gate on the predicted count's standard deviation in units of ``2**bits / 2``.
+        return_counts: return the expected count at the longest exposure, ``tau_max E``, and its variance, instead
+            of the radiance ``E``.
 
     Returns:
-        ``(radiance, variance, used)``, each (B, n): the radiance estimate (counts per unit exposure, >= 0), its
-        variance from the noise model, and the number of frames decoded per pixel (the shortest is always used).
-        Radiance and variance are float64 (float32 on devices without float64).
+        ``(radiance, variance, used)``, each (B, n): the radiance estimate (counts per unit exposure, >= 0; or the
+        counts), its variance from the noise model, and the number of frames decoded per pixel (the shortest is
+        always used). Radiance and variance are float64 (float32 on devices without float64); they are ``inf`` where
+        they are beyond its range.
     """
     work = wide_dtype(frames.device)
     x = frames.to(work)
-    t = tau.to(device=x.device, dtype=work).unsqueeze(-1)  # (B, M, 1)
+    up, down = exposure_unit(tau, work)
+    t = (tau.to(device=x.device, dtype=work) * down.unsqueeze(1)).unsqueeze(-1)  # (B, M, 1): tau / s
     m = x.shape[1]
     period = float(2**bits)
     gate = (period / (2.0 * sigmas)) ** 2
@@ -76,8 +85,34 @@ def decode_noisy(
     # Re-weight with every decoded frame's variance at the final estimate.
     used = torch.isfinite(counts)
     radiance, total = weighted_estimate(counts, used, t, estimate.unsqueeze(1), noise)
-    radiance = (radiance - noise.dark_counts).clamp_min_(0.0)
-    return radiance, 1.0 / total, used.sum(dim=1)
+    variance = 1.0 / total
+    up, down = up.unsqueeze(1), down.unsqueeze(1)
+    if return_counts:  # tau_max (E - D) = (tau_max / s) (s E - s D): no unit enters
+        longest = t[:, -1]
+        radiance = (radiance - noise.dark_counts * up).clamp_min_(0.0) * longest
+        return radiance, variance * (longest * longest), used.sum(dim=1)
+    radiance = (radiance * down - noise.dark_counts).clamp_min_(0.0)
+    return radiance, variance * down * down, used.sum(dim=1)
+
+
+def exposure_unit(tau: torch.Tensor, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per batch item, the unit ``s`` the noise-aware decoder and merge work in, and ``1 / s``, each (B,) in ``dtype``.
+
+    ``s`` is the power of two nearest the geometric middle of the item's shortest and longest exposure (sorted
+    (B, M) ``tau``), so that scaling by it rounds nothing and ``(tau / s)^2`` stays within ``dtype``'s range.
+    """
+    exponent = torch.frexp(tau.to(dtype=dtype))[1].to(torch.int64)
+    return _powers_of_two((exponent[:, 0] + exponent[:, -1]) // 2, dtype)
+
+
+def _powers_of_two(exponent: torch.Tensor, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """``2**exponent`` and ``2**-exponent``, exactly, in ``dtype`` (float64 or float32), with the exponent clamped to
+    the normal range (``torch.exp2`` is not exact)."""
+    if dtype == torch.float64:
+        e = exponent.clamp(-1022, 1022)
+        return ((e + 1023) << 52).view(torch.float64), ((1023 - e) << 52).view(torch.float64)
+    e = exponent.to(torch.int32).clamp(-126, 126)
+    return ((e + 127) << 23).view(torch.float32), ((127 - e) << 23).view(torch.float32)
 
 
 def weighted_estimate(

@@ -9,11 +9,19 @@ ratios evenly. Under noise the ratio a frame may take depends on the counts and 
 Var(I)`` stays under the gate. The planner walks a grid of radiances through the expected decoding and makes each
 ratio as large as the pixels that still need the next frame allow. A pixel needs it until its variance is within
 ``tolerance**2`` of what the longest exposure alone would give it (its oracle), unless it is already at the
-physical limit: a pixel whose next frame is undecodable even at ratio ``min_ratio`` is done.
+physical limit: a pixel whose next frame is undecodable even at ratio ``min_ratio`` is done. No neighbouring ratio
+is below ``min_ratio``: where what is left to reach the longest exposure is a shorter step, the frame before it
+moves down so that the last step is ``min_ratio`` (a shorter step decodes whatever the longer one did), or, where
+that step is too short to give up the room, the last frame moves up to ``min_ratio`` times the one before (every
+pixel that needed it decodes that step, and the darkest read more than one count there).
+
+Both plans hold at most 256 exposures. Under noise the planning runs in a power-of-two unit near ``base`` (which
+changes no rounding), so any base within float64's range plans.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
@@ -21,7 +29,7 @@ import torch
 from torch_modulo._checks import check_bits, check_real
 from torch_modulo.noise import NoiseModel, as_noise_model
 
-__all__ = ["brightest_unwrapped", "plan_exposures", "safe_ratio", "unsafe_ratio_message"]
+__all__ = ["brightest_unwrapped", "dark_rollover_message", "plan_exposures", "safe_ratio", "unsafe_ratio_message"]
 
 _MAX_FRAMES = 256
 
@@ -56,6 +64,28 @@ def brightest_unwrapped(bits: int, noise: NoiseModel, sigmas: float = 3.0, expos
     return max(lo - noise.dark_counts * exposure, 0.0)
 
 
+def dark_rollover_message(bits: int, noise: NoiseModel, sigmas: float, exposure: float, name: str = "") -> str | None:
+    """Why the dark counts of a shortest exposure ``exposure`` leave no count below the rollover under ``noise``
+    (:func:`brightest_unwrapped` is 0 there), or None if they leave room.
+
+    Shared by :func:`plan_exposures` and :func:`~torch_modulo.unwrap_multi`, so both say the same; callers add what
+    to do. ``name`` prefixes the exposure in the message (``"base="``).
+
+    Example:
+        >>> dark_rollover_message(8, NoiseModel(dark_current=300.0), 3.0, 1.0)
+        'noise NoiseModel(electrons_per_count=1.0, read_noise=1.0, dark_current=300.0, prnu=0.0, shot_noise=True): \
+the dark counts of the shortest exposure 1 (300 counts) leave no count below the rollover at bits=8'
+        >>> dark_rollover_message(8, NoiseModel(dark_current=30.0), 3.0, 1.0) is None
+        True
+    """
+    if noise.dark_counts * exposure == 0 or brightest_unwrapped(bits, noise, sigmas, exposure=exposure) > 0:
+        return None  # (without dark counts, what leaves no room is the noise: see plan_exposures)
+    return (
+        f"noise {noise}: the dark counts of the shortest exposure {name}{exposure:g} "
+        f"({noise.dark_counts * exposure:g} counts) leave no count below the rollover at bits={bits}"
+    )
+
+
 def _largest_ratio(
     tau: torch.Tensor, radiance: torch.Tensor, variance: torch.Tensor, noise: NoiseModel, gate: float
 ) -> torch.Tensor:
@@ -75,23 +105,19 @@ def _noisy_plan(
     sigmas: float,
     tolerance: float,
     min_ratio: float,
+    shown: NoiseModel,
 ) -> list[float]:
+    """The noise-aware plan from ``base`` (see the module docstring); ``shown`` is the model the errors name."""
     gate = _gate(bits, sigmas)
-    if noise.count_variance(0.0) >= gate:
-        raise ValueError(
-            f"noise {noise} leaves no margin at bits={bits}: its read noise alone exceeds the decoding gate "
-            f"(2^bits / (2 sigmas))^2 = {gate:g}; use more bits or fewer sigmas"
-        )
     first = brightest_unwrapped(bits, noise, sigmas, exposure=base)  # E_max's signal count at `base`
-    if not first > 0:
-        raise ValueError(
-            f"noise {noise}: the dark counts of the shortest exposure base={base:g} "
-            f"({noise.dark_counts * base:g} counts) leave no count below the rollover at bits={bits}; "
-            "use a shorter base (or longest)"
-        )
     longest = base * 2.0**stops / first  # E_min = 1 / longest reads one count there
     if longest <= base:
         return [float(base)]
+    if not longest <= base * 2.0**500:  # the weights tau^2 / Var below stay within float64's range
+        raise ValueError(
+            f"stops={stops:g} under {shown} needs exposures spanning 2^{math.log2(longest / base):.0f}, beyond the "
+            "2^500 the planner's weights hold in float64; plan fewer stops"
+        )
     # Radiances E_min .. E_max on a log grid; E_max reads `first` counts (plus dark counts) at `base`.
     radiance = 2.0 ** torch.linspace(0.0, float(stops), max(256, int(32 * stops)), dtype=torch.float64) / longest
     radiance = radiance + noise.dark_counts
@@ -102,7 +128,10 @@ def _noisy_plan(
     plan = [tau]
     while tau < longest * (1 - 1e-12):
         if len(plan) >= _MAX_FRAMES:
-            raise ValueError(f"more than {_MAX_FRAMES} exposures would be needed; lower tolerance or the stops")
+            raise ValueError(
+                f"stops={stops:g} under {shown} needs more than {_MAX_FRAMES} exposures; raise tolerance (got "
+                f"{tolerance:g}) or min_ratio (got {min_ratio:g}), or plan fewer stops"
+            )
         ratios = _largest_ratio(torch.tensor(tau, dtype=torch.float64), radiance, 1.0 / total, noise, gate)
         needy = active & (1.0 / total > tolerance**2 * oracle) & (ratios >= min_ratio)
         r = float(ratios[needy].min()) if bool(needy.any()) else limit
@@ -111,6 +140,15 @@ def _noisy_plan(
         active &= r <= ratios
         total = total + torch.where(active, tau**2 / noise.count_variance(tau * radiance), 0.0)
         plan.append(float(tau))
+    if len(plan) > 1 and plan[-1] < plan[-2] * min_ratio * (1 - 1e-12):
+        # The last step, what is left to reach `longest`, is shorter than a frame is worth. Shorten the step before
+        # it so that the last one is min_ratio (a shorter step decodes whatever the longer one did); where that step
+        # is too short for it, lengthen the last frame to min_ratio: every pixel that needed it decodes a step of
+        # min_ratio, and the darkest read more than one count there.
+        if len(plan) > 2 and plan[-1] >= plan[-3] * min_ratio**2:
+            plan[-2] = plan[-1] / min_ratio
+        else:
+            plan[-1] = plan[-2] * min_ratio
     return plan
 
 
@@ -152,15 +190,17 @@ def plan_exposures(
             sensor.
         sigmas: the decoding gate in standard deviations (the same as :func:`~torch_modulo.unwrap_multi`'s).
         tolerance: with noise, how far above its oracle standard deviation a pixel may end (>= 1).
-        min_ratio: with noise, the smallest ratio worth a frame (> 1).
+        min_ratio: with noise, the smallest ratio worth a frame (> 1): no neighbouring ratio of the plan is smaller
+            (the last frame may then lie past the exposure where ``E_min`` reads one count).
 
     Returns:
         Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
 
     Raises:
         TypeError: an argument of the wrong type.
-        ValueError: a value out of range, both ``base`` and ``longest``, or a noise model that no exposure plan can
-            decode (also: dark counts at ``base`` that reach the rollover).
+        ValueError: a value out of range, both ``base`` and ``longest``, a noise model that no exposure plan can
+            decode (also: dark counts at ``base`` that reach the rollover), a plan of more than 256 exposures, or
+            exposures beyond float64's range.
 
     Example:
         >>> plan_exposures(24, bits=8, max_ratio=256)     # the paper: three 8-bit captures cover 24 stops
@@ -203,7 +243,26 @@ def plan_exposures(
             raise ValueError(f"min_ratio must be in (1, max_ratio = {limit:g}]; got {min_ratio}")
         if longest is not None and model.dark_counts > 0:
             base = _base_for_longest(stops, bits, longest, model, sigmas)
-        plan = _noisy_plan(stops, bits, base, limit, model, sigmas, tolerance, min_ratio)
+        gate = _gate(bits, sigmas)
+        if model.count_variance(0.0) >= gate:
+            raise ValueError(
+                f"noise {model} leaves no margin at bits={bits}: its read noise alone exceeds the decoding gate "
+                f"(2^bits / (2 sigmas))^2 = {gate:g}; use more bits or fewer sigmas"
+            )
+        message = dark_rollover_message(bits, model, sigmas, base, "base=")
+        if message is not None:
+            raise ValueError(f"{message}; use a shorter base (or longest)")
+        # Plan in a unit near the base (a power of two: no rounding changes), where tau**2 stays in float64's range;
+        # the dark current per unit exposure follows the unit.
+        unit = 2.0 ** (math.frexp(base)[1] - 1)
+        scaled = dataclasses.replace(model, dark_current=model.dark_current * unit) if model.dark_current else model
+        plan = _noisy_plan(stops, bits, base / unit, limit, scaled, sigmas, tolerance, min_ratio, model)
+        plan = [t * unit for t in plan]
+        if not math.isfinite(plan[-1]):
+            raise ValueError(
+                f"stops={stops:g} from base={base:g} under {model} needs exposures beyond float64's range (about "
+                "2^1024); express exposures in a larger unit (a smaller base) or plan fewer stops"
+            )
     else:
         plan = _noise_free_plan(stops, bits, base, limit)
     if longest is None:
@@ -216,6 +275,11 @@ def _noise_free_plan(stops: float, bits: int, base: float, limit: float) -> list
     if span_log2 <= 0:
         return [float(base)]
     count = 1 + math.ceil(span_log2 / math.log2(limit) - 1e-12)
+    if count > _MAX_FRAMES:
+        raise ValueError(
+            f"stops={stops:g} at bits={bits} with max_ratio={limit!r} needs {count} exposures, more than "
+            f"{_MAX_FRAMES}; raise max_ratio or plan fewer stops"
+        )
     step = 2.0 ** (span_log2 / (count - 1))
     return [float(base * step**i) for i in range(count)]
 

@@ -23,7 +23,7 @@ from torch_modulo._checks import (
 )
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
-from torch_modulo.multishot.planning import unsafe_ratio_message
+from torch_modulo.multishot.planning import dark_rollover_message, unsafe_ratio_message
 from torch_modulo.multishot.stack import neighbour_ratios, sort_stack, stack_exposures
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -58,6 +58,40 @@ def _warn_unsafe(tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: Nois
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)
     warnings.warn(f"{message}, e.g. exposures = plan_exposures({stops}, bits={bits}, noise=noise)", stacklevel=3)
+
+
+def _check_dark_counts(tau: torch.Tensor, bits: int, noise: NoiseModel, sigmas: float) -> None:
+    """Refuse a noise model whose dark counts alone reach the rollover at the shortest exposure (its frames cannot
+    be decoded: every pixel of the shortest frame has rolled over), and warn where they leave no room ``sigmas``
+    deviations below it; :func:`~torch_modulo.plan_exposures` refuses the same model with the same words."""
+    if noise.dark_counts == 0 or not tau.numel():
+        return
+    shortest = float(tau[:, 0].max())
+    message = dark_rollover_message(bits, noise, sigmas, shortest)
+    if message is None:
+        return
+    if noise.dark_counts * shortest > 2**bits - 1:
+        raise ValueError(
+            f"{message}: every pixel of the shortest frame has rolled over, so these frames cannot be decoded with "
+            "this model; check the model's dark current and the exposures' unit"
+        )
+    warnings.warn(f"{message}: dark pixels of the shortest frame may have rolled over", stacklevel=3)
+
+
+def _warn_overflow(values: torch.Tensor, dtype: torch.dtype, what: str) -> None:
+    """Warn when the noise-aware decoder's ``values`` (float64, or float32 without it) are beyond ``dtype``'s range,
+    so that they come back as ``inf``."""
+    if not values.numel():
+        return
+    peak = float(values.amax())
+    limit = torch.finfo(dtype).max
+    if peak > limit:
+        verb = "reach" if what == "counts" else "reaches"
+        warnings.warn(
+            f"{what} {verb} {peak:.4g}, beyond the range of {dtype} (at most {limit:.4g}): it is infinite there; "
+            "use float64 moduli (or exposures in another unit)",
+            stacklevel=3,
+        )
 
 
 def _count_traced(stack: torch.Tensor, tau: torch.Tensor, bits: int, method: str, return_counts: bool) -> torch.Tensor:
@@ -165,9 +199,11 @@ def unwrap_multi(
     :func:`~torch_modulo.plan_exposures` with the same ``noise`` keep every pixel decodable, and exposure ratios
     that leave dark pixels undecodable draw a warning that says what to use instead.
 
-    The noise-free work is vectorised over batch, exposures' pixels and channels; on the CPU it runs over cache-sized
-    chunks of pixels with float64 arithmetic in place, so the decisions are exact for counts up to ``2**53``. The
-    result carries no gradient (rollover counts are discrete). Under ``torch.compile`` the noise-free rules run as
+    The noise-aware decoder works in a power-of-two unit of exposure near the middle of each item's exposures (which
+    rounds nothing), so exposures in any unit within float64's range decode. The noise-free work is vectorised over
+    batch, exposures' pixels and channels; on the CPU it runs over cache-sized chunks of pixels with float64
+    arithmetic in place, so the decisions are exact for counts up to ``2**53``. The result carries no gradient
+    (rollover counts are discrete). Under ``torch.compile`` the noise-free rules run as
     whole-tensor operations with the same arithmetic, in one graph when :func:`torch_modulo.validation` is off;
     the noise-aware decoder runs, but with graph breaks.
 
@@ -197,11 +233,15 @@ def unwrap_multi(
     Raises:
         TypeError: ``moduli`` is not a floating tensor, ``exposures`` not numbers, ``noise`` not a NoiseModel.
         ValueError: bad shapes, values outside ``[0, 2**bits)``, non-integers, NaN/Inf, non-positive exposures, a
-            neighbouring ratio above ``2**bits``, an unknown method, or ``method="paper"`` with ``noise``.
+            neighbouring ratio above ``2**bits``, an unknown method, ``method="paper"`` with ``noise``, or a
+            ``noise`` model whose dark counts alone pass ``2**bits - 1`` at the shortest exposure (its frames would
+            all have rolled over there; :func:`~torch_modulo.plan_exposures` refuses the same model in the same words).
 
     Warns:
-        UserWarning: with ``noise``, when a neighbouring ratio is too large for the noise (see above); without,
-        when the counts are beyond the integers the dtype holds exactly.
+        UserWarning: with ``noise``, when a neighbouring ratio is too large for the noise (see above), when the dark
+        counts at the shortest exposure leave no count ``sigmas`` deviations below the rollover, and when the
+        radiance (or counts, or the returned variance) is beyond the range of the moduli's dtype (it is then
+        ``inf``); without, when the counts are beyond the integers the dtype holds exactly.
 
     Example:
         >>> from torch_modulo import capture_modulo
@@ -243,12 +283,13 @@ def unwrap_multi(
         out = out.view(b, *pixel_shape)
         return out[0] if unbatched else out
 
+    _check_dark_counts(tau, bits, noise, sigmas)
     _warn_unsafe(tau, ratios, bits, noise, sigmas)
     check_modulus(frames, bits, "moduli")
-    radiance, variance, _ = decode_noisy(frames, tau, bits, noise, sigmas)
-    if return_counts:
-        scale = tau[:, -1:].to(radiance.dtype)
-        radiance, variance = radiance * scale, variance * scale**2
+    radiance, variance, _ = decode_noisy(frames, tau, bits, noise, sigmas, return_counts)
+    _warn_overflow(radiance, moduli.dtype, "counts" if return_counts else "radiance")
+    if return_variance:
+        _warn_overflow(variance, moduli.dtype, "variance")
     radiance = radiance.to(moduli.dtype).view(b, *pixel_shape)
     variance = variance.to(moduli.dtype).view(b, *pixel_shape)
     if unbatched:
@@ -341,7 +382,7 @@ class MultiExposureUnwrap(nn.Module):
             frames, exposures = _split_stack(moduli)
         else:
             frames = check_floating(moduli, "moduli")
-        return unwrap_multi(
+        out = unwrap_multi(
             frames,
             exposures,
             self.bits,
@@ -350,6 +391,12 @@ class MultiExposureUnwrap(nn.Module):
             sigmas=self.sigmas,
             return_counts=self.return_counts,
         )
+        # Keep the frames' memory format: channels-last frames (MultiExposureCapture of channels-last radiance) give
+        # a channels-last image.
+        frame = frames[0, 0] if out.dim() == 4 and frames.dim() == 5 and out.numel() else None
+        if frame is not None and not frame.is_contiguous() and frame.permute(1, 2, 0).is_contiguous():
+            return out.contiguous(memory_format=torch.channels_last)
+        return out
 
     def extra_repr(self) -> str:
         return f"bits={self.bits}, method={self.method!r}, return_counts={self.return_counts}, noise={self.noise}"
