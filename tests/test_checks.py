@@ -374,6 +374,22 @@ class TestMetaDevice:
             with pytest.raises(ValueError, match=f"{name} {self.META}"):
                 call()
 
+    @pytest.mark.parametrize("enabled", [True, False])
+    def test_decoders_and_tone_maps_name_the_device(self, enabled: bool) -> None:
+        meta = torch.zeros(1, 3, 4, 4, device="meta")
+        with tm.validation(enabled):
+            with pytest.raises(ValueError, match=f"moduli {self.META}"):
+                tm.unwrap_multi(torch.zeros(1, 2, 1, 4, 4, device="meta"), [1.0, 4.0], 8)
+            with pytest.raises(ValueError, match=f"moduli {self.META}"):
+                tm.unwrap_multi(torch.zeros(1, 2, 1, 4, 4, device="meta"), [1.0, 4.0], 8, noise="q16")
+            for tonemap in (tm.tonemap_reinhard, tm.tonemap_histogram, tm.tonemap_gamma, tm.tonemap_log):
+                with pytest.raises(ValueError, match=self.META):
+                    tonemap(meta)
+
+    def test_wrap_traces_with_the_checks_off(self) -> None:
+        with tm.validation(False):
+            assert tm.modulo_wrap(torch.zeros(2, 3, device="meta"), 8).device.type == "meta"
+
     def test_shape_only_operations_still_trace_with_the_checks_off(self) -> None:
         # Without the value checks nothing reads a value: the capture runs on meta tensors (shapes, dtypes).
         meta = torch.zeros(2, 3, 4, 4, device="meta")

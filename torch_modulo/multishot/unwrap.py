@@ -17,6 +17,7 @@ from torch_modulo._checks import (
     check_choice,
     check_flag,
     check_floating,
+    check_has_values,
     check_modulus,
     check_real,
     validation_enabled,
@@ -263,6 +264,7 @@ def unwrap_multi(
         raise ValueError("return_variance=True needs a noise model (noise=...)")
     sigmas = check_real(sigmas, "sigmas", positive=True)
     stack, tau, unbatched = stack_exposures(moduli, exposures, "moduli")
+    check_has_values(stack, "moduli")  # the decoder reads values, with the checks on or off
     if tau.requires_grad:
         tau = tau.detach()
     bits = check_bits(bits, moduli.dtype)

@@ -14,7 +14,14 @@ from collections.abc import Callable
 import kornia
 import torch
 
-from torch_modulo._checks import check_floating, check_image_shape, check_nonnegative, check_real, validation_enabled
+from torch_modulo._checks import (
+    check_floating,
+    check_has_values,
+    check_image_shape,
+    check_nonnegative,
+    check_real,
+    validation_enabled,
+)
 from torch_modulo._chunks import CPU_CHUNK, chunk_on_cpu, column_chunks
 
 __all__ = ["REC709_LUMA", "luminance"]
@@ -33,6 +40,7 @@ def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
     """
     x = check_floating(hdr, name)
     check_image_shape(x, name, 2, 4)
+    check_has_values(x, name)  # every operator reads the image's statistics, with the checks on or off
     shape = x.shape
     if x.dim() == 2:
         x = x[None, None]
