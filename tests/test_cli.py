@@ -91,7 +91,15 @@ BAD_OPTIONS = [
     (["unwrap", "{in}", "{out}", "--single", "--noise", "q16"], "--noise applies to multi shot only"),
     (["tonemap", "{in}", "{out}", "--srgb", "--no-srgb", "--depth", "12"], "invalid choice: 12"),
     (["simulate", "{in}", "{out}", "--cfa", "RGBG"], "argument --cfa: invalid choice: 'RGBG'"),
-    (["unwrap", "{in}", "{out}", "--cfa", "rggb"], "argument --cfa: invalid choice: 'rggb'"),
+    (["unwrap", "{in}", "{out}", "--cfa", "rgbg"], "argument --cfa: invalid choice: 'RGBG'"),
+    (["simulate", "{in}", "{out}", "--exposures", "-1,16,256"], "got '-1' in '-1,16,256'"),
+    (["simulate", "{in}", "{out}", "--exposures", "-1"], "got '-1' in '-1'"),
+    (["simulate", "{in}", "{out}", "--exposures", "1,1,16"], "exposure 1 appears twice in '1,1,16'"),
+    (["simulate", "{in}", "{out}", "--bits", "0"], "expected a bit depth from 1 to 24; got 0"),
+    (
+        ["simulate", "{in}", "{out}", "--exposures", "1,1000,1000000"],
+        "exposures 1 and 1000 are 1000 times apart, more than 2^8 = 256",
+    ),
 ]
 
 
@@ -171,6 +179,24 @@ class TestUsage:
 # ------------------------------------------------------------------------------------------ messages and codes
 
 
+def test_values_that_look_like_options_and_any_case() -> None:
+    # Regression: --exposures -1,16,256 failed with argparse's "expected one argument", --cfa rggb was refused.
+    parser = build_parser()
+    assert parser.parse_args(["simulate", "i", "o", "--cfa", "rggb"]).cfa == "RGGB"
+    assert parser.parse_args(["unwrap", "i", "o", "--cfa", "gBrG"]).cfa == "GBRG"
+    from torch_modulo.cli import _values_attached
+
+    argv = ["simulate", "i", "o", "--exposures", "-1,16", "--seed", "2", "--scale", "-2"]
+    assert _values_attached(argv) == ["simulate", "i", "o", "--exposures=-1,16", "--seed", "2", "--scale=-2"]
+    assert _values_attached(["simulate", "i", "o", "--exposures", "--noise"]) == [
+        "simulate",
+        "i",
+        "o",
+        "--exposures",
+        "--noise",
+    ]
+
+
 class TestMessages:
     def test_no_inputs(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         (tmp_path / "empty").mkdir()
@@ -199,3 +225,29 @@ class TestMessages:
         args = build_parser().parse_args(["demo", "--solver", "paper"])
         assert args.method == "paper"
         assert "torch-modulo demo: warning: --solver is deprecated; use --method" in capsys.readouterr().err
+
+
+def _option_help(command: str, dest: str) -> str:
+    from torch_modulo.cli import _subparser
+
+    (action,) = [a for a in _subparser(build_parser(), command)._actions if a.dest == dest]
+    return str(action.help)
+
+
+class TestHelpSaysWhatItMeans:
+    def test_noise_help_names_each_preset_once(self) -> None:
+        # Regression: the --noise help listed photon-counting three times.
+        for command in ("simulate", "unwrap"):
+            text = _option_help(command, "noise")
+            assert text.count("photon-counting") == 1 and "dfpa" in text and "q16 (16 e-" in text, text
+
+    def test_unwrap_noise_help_gives_the_real_default(self) -> None:
+        # Regression: unwrap's help said "default (photon-counting)" while its default is each stack's own model.
+        text = _option_help("unwrap", "noise")
+        assert "default (photon-counting)" not in text and "the model each stack records" in text
+
+    def test_unwrap_method_help_says_what_it_means_in_each_case(self) -> None:
+        # Regression: --method is a multi-shot rule or a single-shot method depending on --single; say so per case.
+        text = _option_help("unwrap", "method").lower()
+        multi, single = text.index("without --single, a multi-shot rule:"), text.index("with --single, a single-shot")
+        assert multi < text.index("robust") < single < text.index("learned")

@@ -8,7 +8,7 @@ import argparse
 
 import pytest
 
-from torch_modulo._cli_options import JOB_OPTIONS, exposures, noise, param, scale
+from torch_modulo._cli_options import JOB_OPTIONS, bit_depth, exposures, noise, param, scale
 from torch_modulo.cli import build_parser
 from torch_modulo.noise import NoiseModel
 
@@ -58,12 +58,15 @@ def test_job_options_keep_defaults_out_of_the_fingerprint(capsys: pytest.Capture
     options = JOB_OPTIONS["simulate"](args, commands["simulate"])
     assert options["nonfinite"] == "raise" and options["cfa"] == "RGGB" and options["noise"] is None
     assert capsys.readouterr().err == ""
-    args = parser.parse_args(["simulate", "i", "o", "--exposures", "1,1000"])
-    assert "nonfinite" not in JOB_OPTIONS["simulate"](args, commands["simulate"])
+    args = parser.parse_args(["simulate", "i", "o", "--exposures", "1,1000", "--force-exposures"])
+    options = JOB_OPTIONS["simulate"](args, commands["simulate"])
+    assert "nonfinite" not in options and options["force_exposures"] is True
     assert capsys.readouterr().err == (
-        "torch-modulo simulate: warning: exposures 1 and 1000 are more than 2^8 apart; `torch-modulo unwrap` cannot "
-        "count the rollovers between them\n"
+        "torch-modulo simulate: warning: exposures 1 and 1000 are 1000 times apart, more than 2^8 = 256: "
+        "`torch-modulo unwrap` cannot count the rollovers between them (--force-exposures writes them anyway)\n"
     )
+    args = parser.parse_args(["simulate", "i", "o", "--exposures", "1,256"])
+    assert "force_exposures" not in JOB_OPTIONS["simulate"](args, commands["simulate"])
     args = parser.parse_args(["unwrap", "i", "o", "--workers", "1"])
     options = JOB_OPTIONS["unwrap"](args, commands["unwrap"])
     assert options == {
@@ -76,3 +79,25 @@ def test_job_options_keep_defaults_out_of_the_fingerprint(capsys: pytest.Capture
         "confidence": False,
         "_solver_workers": None,
     }
+
+
+def test_duplicate_exposures_are_refused_by_name() -> None:
+    # Regression: 1,1,16 was accepted silently (two frames of one exposure add nothing to rollover counting).
+    with pytest.raises(argparse.ArgumentTypeError, match=r"exposure 1 appears twice in '1,1.0,16'"):
+        exposures("1,1.0,16")
+
+
+@pytest.mark.parametrize("text", ["0", "25", "-3"])
+def test_bit_depths_out_of_range_get_one_message(text: str) -> None:
+    # Regression: --bits 0 said "expected a number >= 1", --bits 25 "expected a bit depth from 1 to 24".
+    with pytest.raises(argparse.ArgumentTypeError, match=rf"^expected a bit depth from 1 to 24; got {text}$"):
+        bit_depth(text)
+
+
+def test_crop_and_max_side_values() -> None:
+    from torch_modulo._cli_options import crop_size
+
+    assert crop_size("256") == [256, 256] and crop_size("128,256") == [128, 256] and crop_size("128x256") == [128, 256]
+    for bad in ("0", "1,2,3", "a", "-4"):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"expected a crop size H,W or N .*; got {bad!r}"):
+            crop_size(bad)

@@ -138,7 +138,7 @@ class TestHDRFolder:
         with pytest.raises(FileNotFoundError, match="missing"):
             HDRFolder(tmp_path / "missing")
         (tmp_path / "empty").mkdir()
-        with pytest.raises(ValueError, match=r"no files ending in \.exr, \.hdr, \.pfm in .*empty"):
+        with pytest.raises(ValueError, match=r"no files ending in \.exr, \.hdr, \.pfm, \.tif, \.tiff in .*empty"):
             HDRFolder(tmp_path / "empty")
         with pytest.raises(ValueError, match="crop must hold positive ints; got 0"):
             HDRFolder(scenes, crop=0)
@@ -286,3 +286,40 @@ class TestRandomModuloCapture:
         for radiance in DataLoader(HDRFolder(scenes, resize=(8, 8)), batch_size=2, num_workers=2):
             moduli = loop_capture(radiance)
             assert torch.equal(moduli, capture_modulo(radiance, loop_capture.exposure, bits=8))
+
+
+class TestHDRFolderFormatsAndBadFiles:
+    def test_reads_the_formats_the_command_line_reads(self, scenes: Path) -> None:
+        # Regression: HDRFolder collected .exr .hdr .pfm only, while `torch-modulo simulate` also reads TIFF.
+        from torch_modulo.radiance import RADIANCE_EXTENSIONS
+
+        write_image(scenes / "f.tif", torch.rand(3, 24, 32) * 50, dtype="float")
+        dataset = HDRFolder(scenes)
+        assert [p.name for p in dataset.paths] == ["a.exr", "b.exr", "f.tif", "c.hdr", "d.pfm"]
+        assert set(RADIANCE_EXTENSIONS) <= set(dataset.extensions)
+
+    def test_display_referred_files_are_refused_unless_linear(self, tmp_path: Path) -> None:
+        write_image(tmp_path / "photo.tif", torch.full((3, 4, 4), 200.0), dtype="uint8")
+        with pytest.raises(ValueError, match=r"photo\.tif holds 8-bit integers, display-referred"):
+            HDRFolder(tmp_path)[0]
+        assert HDRFolder(tmp_path, linear=True)[0].max() == 200.0
+
+    def test_skip_bad_keeps_a_dataloader_going_and_reports(self, scenes: Path) -> None:
+        # Regression: one unreadable file stopped the whole DataLoader.
+        (scenes / "broken.exr").write_bytes(b"not an EXR" * 20)
+        with pytest.raises(OSError, match=r"broken\.exr"):
+            list(DataLoader(HDRFolder(scenes, crop=8), batch_size=1))
+        dataset = HDRFolder(scenes, crop=8, skip_bad=True)
+        with pytest.warns(UserWarning, match=r"HDRFolder: skipped .*broken\.exr \(OSError: .*\); gave .*c\.hdr"):
+            batches = list(DataLoader(dataset, batch_size=2))
+        assert sum(b.shape[0] for b in batches) == len(dataset) == 5
+        assert list(dataset.skipped) == [str(scenes / "broken.exr")]
+
+    def test_skip_bad_with_nothing_good_raises(self, tmp_path: Path) -> None:
+        (tmp_path / "broken.exr").write_bytes(b"not an EXR" * 20)
+        with pytest.raises(ValueError, match=r"every file of .* failed to load; the last: .*broken\.exr"):
+            HDRFolder(tmp_path, skip_bad=True)[0]
+
+    def test_skip_bad_must_be_a_flag(self, scenes: Path) -> None:
+        with pytest.raises(TypeError, match="skip_bad must be a bool"):
+            HDRFolder(scenes, skip_bad="yes")  # type: ignore[arg-type]

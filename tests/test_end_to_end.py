@@ -932,3 +932,69 @@ class TestReliability:
             assert _cli(command, tmp_path / "in", out, "--nonfinite", "raise") == 1
             error = _report(out, command)["failed"][0]["error"]
             assert error.startswith(f"ValueError: {source} holds 2 NaN or infinite values (1 NaN, 1 +Inf, 0 -Inf)")
+
+
+class TestSimulateInputs:
+    def test_display_referred_files_are_refused_unless_linear(self, tmp_path: Path) -> None:
+        # Regression: `simulate photo.png out/` took the sRGB 0-255 values as linear radiance and reported it done.
+        photo = tmp_path / "photo.png"
+        write_image(photo, torch.arange(48.0).view(3, 4, 4) * 5, dtype="uint8")
+        out = tmp_path / "out"
+        assert _cli("simulate", photo, out, "--exposures", "1,16", "--noise", "none") == 1
+        (failed,) = _report(out, "simulate")["failed"]
+        assert "photo.png holds 8-bit integers" in failed["error"] and "--linear" in failed["error"]
+        assert not (out / "photo").exists()
+        assert _cli("simulate", photo, out, "--exposures", "1,16", "--noise", "none", "--linear") == 0
+        assert FileSensor(out / "photo").read().num_exposures == 2
+
+    def test_the_library_job_refuses_them_too(self, tmp_path: Path) -> None:
+        from torch_modulo._task import Task
+        from torch_modulo.pipeline import simulate_job
+
+        photo = tmp_path / "photo.tif"
+        write_image(photo, torch.arange(48.0).view(3, 4, 4) * 5, dtype="uint16")
+        options = {"bits": 8, "exposures": [1.0, 16.0], "noise": None, "seed": 0, "scale": "auto"}
+        options |= {"format": "exr", "truth": True}
+        task = Task("photo.tif", str(photo), (str(tmp_path / "out"),))
+        with pytest.raises(ValueError, match="photo.tif holds 16-bit integers"):
+            simulate_job(task, options)
+        assert simulate_job(task, {**options, "linear": True})["exposures"] == [1.0, 16.0]
+
+    def test_max_side_averages_areas_and_crop_cuts_the_centre(self, scenes: Path, tmp_path: Path) -> None:
+        # Regression: simulate had no way to shrink big scenes (the benchmarks' area averaging) or to crop them.
+        from torch_modulo.protocols import downsample_area
+        from torch_modulo.radiance import load_radiance
+
+        out = tmp_path / "out"
+        base = ("--exposures", "1,16", "--noise", "none")
+        assert _cli("simulate", scenes / "a.exr", out, *base, "--max-side", 8) == 0
+        truth = read_image(out / "a" / "radiance.exr", dtype=torch.float64)
+        expected = downsample_area(load_radiance(scenes / "a.exr", dtype=torch.float64), 8)  # 12 x 16 -> 6 x 8
+        scale = FileSensor(out / "a").read().metadata["radiance_scale"]
+        torch.testing.assert_close(truth, (expected * scale).float().double())
+        assert _report(out, "simulate")["done"][0]["shape"] == [3, 6, 8]
+        assert _cli("simulate", scenes / "a.exr", tmp_path / "crop", *base, "--max-side", 8, "--crop", "4,6") == 0
+        cropped = read_image(tmp_path / "crop" / "a" / "radiance.exr", dtype=torch.float64)
+        assert cropped.shape == (3, 4, 6)
+        assert _cli("simulate", scenes / "a.exr", tmp_path / "big", *base, "--crop", "20") == 1
+        (failed,) = _report(tmp_path / "big", "simulate")["failed"]
+        assert "a.exr is 12 x 16, smaller than --crop 20 x 20" in failed["error"]
+
+
+class TestTonemapInputs:
+    def test_frames_and_confidence_maps_are_skipped_and_reported(self, scenes: Path, tmp_path: Path) -> None:
+        # Regression: tonemap on a folder of frame stacks tone-mapped every wrapped frame as radiance, and on
+        # `unwrap --confidence` output it tone-mapped the confidence maps.
+        stacks = tmp_path / "stacks"
+        assert _cli("simulate", scenes / "a.exr", stacks, "--exposures", "1,16", "--noise", "none") == 0
+        write_image(stacks / "map.confidence.exr", torch.rand(1, 4, 4), {"unit": "confidence in [0, 1]"})
+        out = tmp_path / "png"
+        assert _cli("tonemap", stacks, out) == 0
+        report = _report(out, "tonemap")
+        assert _names(report["done"]) == ["a/radiance.exr"]  # the stored truth is radiance
+        skipped = {e["input"]: e["reason"] for e in report["skipped"]}
+        assert sorted(skipped) == ["a/frame_b000_m00.exr", "a/frame_b000_m01.exr", "map.confidence.exr"]
+        assert "a frame of a modulo camera" in skipped["a/frame_b000_m00.exr"]
+        assert "a confidence map" in skipped["map.confidence.exr"]
+        assert report["counts"] == {"total": 4, "done": 1, "skipped": 3, "failed": 0, "not_finished": 0}
+        assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.png")) == ["a/radiance.png"]

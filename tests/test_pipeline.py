@@ -267,3 +267,26 @@ def test_moved_names_still_work_with_a_deprecation_warning() -> None:
             assert getattr(pipeline, name) is getattr(folders, name)
     with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
         pipeline.nothing  # noqa: B018
+
+
+class TestSimulateRefusesUndecodableExposures:
+    def test_ratios_above_two_to_the_bits_are_refused_before_writing(self, tmp_path: Path) -> None:
+        # Regression: exposures 1, 1000, 1e6 at 8 bits warned, wrote every stack, and unwrap then failed them all.
+        source = write_image(tmp_path / "a.exr", torch.rand(3, 4, 4) * 100 + 1)
+        options = {"bits": 8, "exposures": [1.0, 1000.0, 1e6], "noise": None, "seed": 0, "scale": "auto"}
+        options |= {"format": "exr", "truth": True}
+        task = Task("a.exr", str(source), (str(tmp_path / "out"),))
+        with pytest.raises(ValueError, match=r"exposures 1 and 1000 are 1000 times apart, more than 2\^8 = 256"):
+            pipeline.simulate_job(task, options)
+        assert not (tmp_path / "out").exists()
+        info = pipeline.simulate_job(task, {**options, "force_exposures": True})
+        assert info["exposures"] == [1.0, 1000.0, 1e6] and any("1000 times apart" in w for w in info["warnings"])
+
+
+def test_tonemap_job_refuses_frames(tmp_path: Path) -> None:
+    # Regression: the tonemap job tone-mapped a wrapped frame as radiance.
+    frame = write_image(tmp_path / "f.exr", torch.ones(1, 2, 2) * 3, {"bits": 8, "exposure": 16.0})
+    task = Task("f.exr", str(frame), (str(tmp_path / "f.png"),))
+    with pytest.raises(ValueError, match=r"f\.exr is not radiance: a frame of a modulo camera"):
+        pipeline.tonemap_job(task, tonemap_options("log", {}))
+    assert not (tmp_path / "f.png").exists()

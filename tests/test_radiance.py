@@ -106,3 +106,28 @@ def test_every_radiance_reader_shares_load_radiance() -> None:
         assert "nan_to_num" not in text and "torch.isfinite" not in text, name
     for name in ("pipeline.py", "data.py", "demo.py"):
         assert "from torch_modulo.radiance import" in (root / name).read_text(), name
+
+
+class TestDisplayReferredFiles:
+    """8/16-bit PNG and TIFF hold display-referred (sRGB-encoded) values, not radiance (regression: simulate took a
+    PNG's 0-255 values as linear radiance and reported it done)."""
+
+    @pytest.mark.parametrize("name, kind", [("photo.png", "uint8"), ("photo.tif", "uint16"), ("photo.png", "uint16")])
+    def test_integer_files_are_refused_unless_linear(self, tmp_path: Path, name: str, kind: str) -> None:
+        path = tmp_path / name
+        write_image(path, torch.tensor([[[0.0, 7.0], [100.0, 255.0]]]), dtype=kind)
+        bits = kind.removeprefix("uint")
+        with pytest.raises(ValueError, match=rf"{name} holds {bits}-bit integers, display-referred.*linear=True"):
+            load_radiance(path, linear=False)
+        assert load_radiance(path, linear=True).tolist() == [[[0.0, 7.0], [100.0, 255.0]]]
+        assert torch.equal(load_radiance(path), load_radiance(path, linear=True))  # no opinion: read as stored
+        assert radiance.display_referred(path) == f"{bits}-bit integers"
+
+    def test_float_files_are_radiance(self, tmp_path: Path) -> None:
+        path = _write(tmp_path / "x.exr", torch.ones(1, 2, 2))
+        assert radiance.display_referred(path) is None
+        assert load_radiance(path, linear=False).shape == (1, 2, 2)
+
+    def test_linear_must_be_a_flag(self, tmp_path: Path) -> None:
+        with pytest.raises(TypeError, match="linear must be a bool or None"):
+            load_radiance(_write(tmp_path / "x.exr", torch.ones(1, 2, 2)), linear="yes")  # type: ignore[arg-type]

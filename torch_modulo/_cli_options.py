@@ -20,11 +20,13 @@ from typing import Any
 
 from torch_modulo import pipeline
 from torch_modulo._argtypes import parse as _parse
-from torch_modulo._argtypes import positive_int as _positive_int
+from torch_modulo._scene_rules import undecodable_ratio
 
 __all__ = [
     "JOB_OPTIONS",
     "bit_depth",
+    "cfa_pattern",
+    "crop_size",
     "exposures",
     "noise",
     "param",
@@ -63,11 +65,16 @@ def ratio(text: str) -> float:
 
 
 def bit_depth(text: str) -> int:
-    """A sensor bit depth, a whole number from 1 to 24."""
-    value = _positive_int(text)
-    if value > 24:
+    """A sensor bit depth, a whole number from 1 to 24 (one message for every value outside)."""
+    value = _parse(text, int, "a bit depth from 1 to 24")
+    if not 1 <= value <= 24:
         raise argparse.ArgumentTypeError(f"expected a bit depth from 1 to 24; got {value}")
     return value
+
+
+def cfa_pattern(text: str) -> str:
+    """A colour filter array's name in any case (``rggb`` -> ``"RGGB"``); ``choices`` then checks it."""
+    return text.strip().upper()
 
 
 def positive_float(text: str) -> float:
@@ -79,7 +86,8 @@ def positive_float(text: str) -> float:
 
 
 def exposures(text: str) -> list[float] | str:
-    """``"auto"``, or ``"1,256,65536"`` -> [1.0, 256.0, 65536.0]: one or more finite exposures > 0."""
+    """``"auto"``, or ``"1,256,65536"`` -> [1.0, 256.0, 65536.0]: one or more finite exposures > 0, each once (two
+    frames of one exposure add nothing to rollover counting, so a repeated exposure is refused, not merged)."""
     if text.strip() == "auto":
         return "auto"
     parts = [p.strip() for p in text.split(",")]
@@ -95,8 +103,24 @@ def exposures(text: str) -> list[float] | str:
             raise argparse.ArgumentTypeError(f"exposure {part!r} in {text!r} is not a number") from None
         if not (math.isfinite(value) and value > 0):
             raise argparse.ArgumentTypeError(f"exposures must be finite and > 0; got {part!r} in {text!r}")
+        if value in values:
+            raise argparse.ArgumentTypeError(
+                f"exposure {value:g} appears twice in {text!r}: give each exposure once (one frame each)"
+            )
         values.append(value)
     return values
+
+
+def crop_size(text: str) -> list[int]:
+    """``"256"`` -> [256, 256], ``"128,256"`` or ``"128x256"`` -> [128, 256]: a crop's height and width."""
+    parts = text.replace("x", ",").split(",")
+    try:
+        values = [int(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 2) or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"expected a crop size H,W or N (pixels, each >= 1); got {text!r}")
+    return values * 2 if len(values) == 1 else values
 
 
 def scale(text: str) -> str | float:
@@ -195,19 +219,21 @@ def _noise_option(value: dict[str, Any] | str | None, default: Any) -> Any:
 
 def simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> dict[str, Any]:
     """The options of :func:`torch_modulo.pipeline.simulate_job` from ``simulate``'s arguments; a bad combination
-    is a usage error of ``sub``, and exposures too far apart for ``unwrap`` are warned about on stderr."""
+    is a usage error of ``sub``, as are exposures too far apart for ``unwrap`` to decode, unless forced
+    (``--force-exposures``: then a warning on stderr)."""
     if args.format != "exr" and args.bits > 16:
         sub.error(f"--format {args.format} holds at most 16 bits; got --bits {args.bits} (use --format exr)")
-    if args.exposures != "auto":
-        taus = sorted(args.exposures)
-        too_far = [(a, b) for a, b in zip(taus, taus[1:], strict=False) if b / a > 2**args.bits]
-        if too_far:
-            a, b = too_far[0]
-            print(
-                f"torch-modulo simulate: warning: exposures {a:g} and {b:g} are more than 2^{args.bits} apart; "
-                "`torch-modulo unwrap` cannot count the rollovers between them",
-                file=sys.stderr,
+    if args.exposures != "auto" and (too_far := undecodable_ratio(args.exposures, args.bits)):
+        if not args.force_exposures:
+            sub.error(
+                f"--exposures: {too_far}: `torch-modulo unwrap` cannot count the rollovers between them; choose "
+                "exposures at most 2^bits apart or --exposures auto (--force-exposures writes them anyway)"
             )
+        print(
+            f"torch-modulo simulate: warning: {too_far}: `torch-modulo unwrap` cannot count the rollovers between "
+            "them (--force-exposures writes them anyway)",
+            file=sys.stderr,
+        )
     from torch_modulo.noise import NoiseModel
 
     options = {
@@ -221,6 +247,14 @@ def simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> 
     }
     if args.cfa is not None:  # only when given: outputs completed without it stay complete
         options["cfa"] = args.cfa
+    if args.linear:
+        options["linear"] = True
+    if args.force_exposures and args.exposures != "auto":
+        options["force_exposures"] = True
+    if args.max_side is not None:
+        options["max_side"] = args.max_side
+    if args.crop is not None:
+        options["crop"] = args.crop
     return _with_nonfinite(options, args.nonfinite)
 
 

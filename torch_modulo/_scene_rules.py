@@ -30,6 +30,8 @@ __all__ = [
     "restored_colour",
     "restored_confidence",
     "scene_stops",
+    "shrink_scene",
+    "undecodable_ratio",
     "unsafe_ratio_warnings",
 ]
 
@@ -162,6 +164,64 @@ def fit_scale(image: torch.Tensor, bits: int, exposures: Sequence[float], noise:
     if not p > 0:
         p = float(values.max())
     return (16 * 2.0**bits - 1) / (p * taus[0])
+
+
+def shrink_scene(
+    image: torch.Tensor, max_side: int | None, crop: Sequence[int] | None, source: object
+) -> tuple[torch.Tensor, dict[str, Any]]:
+    """A (C, H, W) scene made smaller for ``simulate``: area-averaged by the smallest integer factor that brings its
+    longer side to at most ``max_side`` (:func:`torch_modulo.protocols.downsample_area`, as the benchmarks shrink
+    scenes), then cropped to its centre ``crop`` (height, width); and what was done, for the report.
+
+    Raises:
+        ValueError: the scene (after ``max_side``) is smaller than ``crop``; the message names ``source``.
+
+    Example:
+        >>> scene, facts = shrink_scene(torch.ones(1, 12, 16), 8, (4, 6), "a.exr")
+        >>> tuple(scene.shape), facts
+        ((1, 4, 6), {'shrunk': [12, 16, 6, 8], 'cropped': [4, 6]})
+    """
+    from torch_modulo.protocols import downsample_area
+
+    facts: dict[str, Any] = {}
+    h, w = image.shape[-2:]
+    if max_side is not None:
+        image = downsample_area(image, int(max_side))
+        if tuple(image.shape[-2:]) != (h, w):
+            facts["shrunk"] = [h, w, *image.shape[-2:]]
+    if crop is not None:
+        ch, cw = (int(v) for v in crop)
+        h, w = image.shape[-2:]
+        if ch > h or cw > w:
+            after = " after --max-side" if "shrunk" in facts else ""
+            raise ValueError(f"{source} is {h} x {w}{after}, smaller than --crop {ch} x {cw}")
+        top, left = (h - ch) // 2, (w - cw) // 2
+        image = image[..., top : top + ch, left : left + cw]
+        facts["cropped"] = [ch, cw]
+    return image, facts
+
+
+def undecodable_ratio(taus: Sequence[float], bits: int) -> str | None:
+    """Why rollover counting cannot decode exposures ``taus`` at ``bits`` bits, or None when it can: two neighbours
+    more than ``2**bits`` apart, or more than ``2**bits - 1`` apart by a ratio that is not a whole number (Eq. 6
+    decodes ratios up to ``2**bits - 1``, and whole ratios up to ``2**bits``, exactly).
+
+    Example:
+        >>> undecodable_ratio([1, 1000, 1e6], 8)
+        'exposures 1 and 1000 are 1000 times apart, more than 2^8 = 256'
+        >>> undecodable_ratio([1, 255.5], 8)
+        'exposures 1 and 255.5 are 255.5 times apart, more than 2^8 - 1 = 255 and not a whole ratio'
+        >>> undecodable_ratio([1, 16, 256], 8) is None
+        True
+    """
+    ordered = sorted(float(t) for t in taus)
+    for a, b in zip(ordered, ordered[1:], strict=False):
+        ratio, apart = b / a, f"exposures {a:g} and {b:g} are {b / a:g} times apart"
+        if ratio > 2.0**bits:
+            return f"{apart}, more than 2^{bits} = {2**bits}"
+        if ratio > 2.0**bits - 1 and not float(ratio).is_integer():
+            return f"{apart}, more than 2^{bits} - 1 = {2**bits - 1} and not a whole ratio"
+    return None
 
 
 def unsafe_ratio_warnings(taus: Sequence[float], bits: int, noise: NoiseModel | None, image: torch.Tensor) -> list[str]:

@@ -2,10 +2,11 @@
 
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
     torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N] [--cfa RGGB]
+                                 [--max-side N] [--crop H,W] [--linear]
                                                     every HDR file in IN -> a modulo frame stack per scene in OUT
     torch-modulo unwrap IN OUT [--single] [--noise MODEL] [--cfa RGGB] [--no-demosaic]
                                                     frame stacks (or single modulus images) -> radiance EXRs
-    torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs
+    torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs (frames, confidence maps skipped)
 
 The per-file work lives in :mod:`torch_modulo.pipeline`, each folder command's inputs in
 :mod:`torch_modulo.folders`, the options' types and the jobs' options in :mod:`torch_modulo._cli_options`, and the
@@ -26,7 +27,18 @@ from typing import Any
 
 from torch_modulo._argtypes import nonnegative_int as _nonnegative_int
 from torch_modulo._argtypes import positive_int as _positive_int
-from torch_modulo._cli_options import JOB_OPTIONS, bit_depth, exposures, noise, param, positive_float, ratio, scale
+from torch_modulo._cli_options import (
+    JOB_OPTIONS,
+    bit_depth,
+    cfa_pattern,
+    crop_size,
+    exposures,
+    noise,
+    param,
+    positive_float,
+    ratio,
+    scale,
+)
 from torch_modulo.cfa import CFA_PATTERNS
 from torch_modulo.pipeline import NONFINITE, TONEMAP_OPS, simulate_job, tonemap_job, unwrap_job
 
@@ -162,23 +174,29 @@ def _add_demo(commands: Any) -> None:
     )
 
 
+_NOISE_PRESETS = (
+    "photon-counting (1 e- per count, 1 e- read noise{photon}), q16 (16 e- per count, 16 e- read noise) or dfpa (a "
+    "digital-pixel focal plane array like the paper's camera; see torch_modulo.noise.NoiseModel.preset)"
+)
 _NOISE_HELP = (
-    "{default}; none (Eq. 1 exactly); a preset: photon-counting (1 e- per count, 1 e- read noise), q16 (16 e- "
-    "per count, 16 e- read noise) or dfpa (a digital-pixel focal plane array like the paper's camera; see "
-    "torch_modulo.noise.NoiseModel.preset); default (photon-counting); or KEY=VALUE pairs, optionally after a "
-    "preset whose fields they change: q=electrons per count, read=read noise (e- rms), dark=dark current (e- per "
-    "unit exposure), prnu=fixed-pattern gain spread, shot=on|off; e.g. read=2,prnu=0.01 or q16,read=20"
+    "{default}. Otherwise: none (Eq. 1 exactly); a preset, {presets}; or KEY=VALUE pairs, optionally after a preset "
+    "whose fields they change (else the first preset's): q=electrons per count, read=read noise (e- rms), "
+    "dark=dark current (e- per unit exposure), prnu=fixed-pattern gain spread, shot=on|off; e.g. read=2,prnu=0.01 or "
+    "q16,read=20"
 )
 
 
-def _add_noise(sub: argparse.ArgumentParser, default: str) -> None:
-    """``--noise MODEL`` (:func:`torch_modulo._cli_options.noise`), whose help starts with what ``default`` says."""
-    sub.add_argument("--noise", type=noise, default=None, metavar="MODEL", help=_NOISE_HELP.format(default=default))
+def _add_noise(sub: argparse.ArgumentParser, default: str, photon: str = "") -> None:
+    """``--noise MODEL`` (:func:`torch_modulo._cli_options.noise`): its help starts with what ``default`` says, and
+    ``photon`` ends the photon-counting preset's description (where it is the default)."""
+    presets = _NOISE_PRESETS.format(photon=photon)
+    text = _NOISE_HELP.format(default=default, presets=presets)
+    sub.add_argument("--noise", type=noise, default=None, metavar="MODEL", help=text)
 
 
 def _add_cfa(sub: argparse.ArgumentParser, text: str) -> None:
     """``--cfa PATTERN``: one of the colour filter arrays, default none, with the help ``text``."""
-    sub.add_argument("--cfa", choices=CFA_PATTERNS, default=None, metavar="PATTERN", help=text)
+    sub.add_argument("--cfa", type=cfa_pattern, choices=CFA_PATTERNS, default=None, metavar="PATTERN", help=text)
 
 
 _SIMULATE_DESCRIPTION = (
@@ -200,6 +218,7 @@ _SIMULATE_EXAMPLES = (
     "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
     "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
     "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
+    "  torch-modulo simulate big_scenes/ small/ --max-side 512 --crop 256     # area-averaged, centre crop\n"
 )
 
 
@@ -220,10 +239,17 @@ def _add_simulate(commands: Any) -> None:
         metavar="auto|T1,T2,...",
         help="auto (default): per scene, plan_exposures(stops, bits, noise=..., longest=1) for the scene's own "
         "stops (log2 of its maximum over the 0.1th percentile of its positive values, plus 4, rounded up); or "
-        "exposures, comma-separated, e.g. 1,16,256 (under noise, ratios the noise model says are "
-        "unsafe draw a warning naming a safe plan; one exposure: a single-shot stack)",
+        "exposures, comma-separated, each once, e.g. 1,16,256 (neighbours more than 2^bits apart, which unwrap "
+        "cannot decode, are refused: see --force-exposures; under noise, ratios the noise model says are unsafe "
+        "draw a warning naming a safe plan; one exposure: a single-shot stack)",
     )
-    _add_noise(simulate, "the sensor's noise: photon-counting (default)")
+    simulate.add_argument(
+        "--force-exposures",
+        action="store_true",
+        help="write stacks whose exposures have two neighbours more than 2^bits apart, which `torch-modulo unwrap` "
+        "cannot decode (default: off, such --exposures are a usage error and nothing is written)",
+    )
+    _add_noise(simulate, "the sensor's noise model (default: the first preset below)", "; the default, also 'default'")
     simulate.add_argument(
         "--seed",
         type=_nonnegative_int,
@@ -255,6 +281,29 @@ def _add_simulate(commands: Any) -> None:
         help="also write radiance.exr, the scaled ground truth (default: on)",
     )
     simulate.add_argument("--nonfinite", choices=NONFINITE, default="replace", help=_NONFINITE_HELP)
+    simulate.add_argument(
+        "--max-side",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="shrink each scene first by area averaging, by the smallest integer factor that brings its longer side "
+        "to at most N pixels (torch_modulo.protocols.downsample_area, as the benchmarks do; rows and columns that do "
+        "not fill a block are dropped); e.g. --max-side 512 (default: full size)",
+    )
+    simulate.add_argument(
+        "--crop",
+        type=crop_size,
+        default=None,
+        metavar="H,W",
+        help="keep the centre H x W pixels of each scene (after --max-side; N for N x N), e.g. --crop 256,384; "
+        "a scene smaller than that fails, named in the report (default: no crop)",
+    )
+    simulate.add_argument(
+        "--linear",
+        action="store_true",
+        help="take 8/16-bit integer files (PNG, TIFF) as linear radiance; without it they fail, named in the "
+        "report: their values are display-referred (a photo encoded for a screen), not light (default: off)",
+    )
     _add_cfa(
         simulate,
         f"capture with a colour sensor whose colour filter array is PATTERN ({', '.join(CFA_PATTERNS)}: the "
@@ -328,8 +377,8 @@ def _add_unwrap(commands: Any) -> None:
     )
     _add_noise(
         unwrap,
-        "multi shot: the sensor's noise model for noise-aware decoding (default: the one each stack "
-        "records, noise-free where none is; none forces noise-free decoding)",
+        "multi shot only: the sensor's noise model for noise-aware decoding (default: the model each stack records "
+        "in its manifest, as simulate writes it; noise-free where a stack records none)",
     )
     unwrap.add_argument(
         "--confidence",
@@ -346,15 +395,15 @@ def _add_unwrap(commands: Any) -> None:
         action=_MethodOption,
         dest="method",
         default=None,
-        metavar="METHOD",
-        help="multi shot: the rule, robust (default; exact without noise for ratios up to 2^bits - 1 and integer "
-        "ratios up to 2^bits, and the one "
-        "that decodes with a noise model) or paper (Eq. 6 as printed, noise-free); with --single: the method of "
-        "unwrap_single, learned (the shipped network's rollover jumps, decoded exactly, then its level moves, "
-        "not on mosaics; the default), guided (path following, channels together), fast (the paper's graph cut on "
-        "a cheaper schedule), paper (Eqs. 3-5 from k = 0, slow) or lsq (DCT least squares), optionally with "
-        "unwrap_single's options for it as NAME:KEY=VALUE,... (e.g. learned:levels=False, no level moves, faster; "
-        "guided:denoise=0.7); --solver is its deprecated former name (--single only)",
+        metavar="RULE|METHOD",
+        help="its meaning depends on --single. Without --single, a multi-shot rule: robust (the default; exact "
+        "without noise for ratios up to 2^bits - 1 and integer ratios up to 2^bits, and the one that decodes with a "
+        "noise model) or paper (Eq. 6 as printed, noise-free). With --single, a single-shot method of unwrap_single: "
+        "learned (the default: the shipped network's rollover jumps, decoded exactly, then its level moves; not on "
+        "mosaics), guided (path following, channels together), fast (the paper's graph cut on a cheaper schedule), "
+        "paper (Eqs. 3-5 from k = 0, slow) or lsq (DCT least squares), optionally with unwrap_single's options for "
+        "it as NAME:KEY=VALUE,... (e.g. learned:levels=False, no level moves, faster; guided:denoise=0.7); "
+        "--solver is its deprecated former name (--single only)",
     )
     _add_cfa(
         unwrap,
@@ -482,8 +531,12 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
         return 1
     if args.report is not None and (clash := _report_clash(Path(args.report), source, out, tasks)):
         sub.error(clash)
+    not_radiance: list[dict[str, Any]] = []
+    if args.command == "tonemap":  # frames and confidence maps are skipped, and reported
+        tasks, not_radiance = folders.radiance_tasks(tasks, out)
     if not tasks:
-        print(f"{prog}: error: no {wanted} found in {source}", file=sys.stderr)
+        also = f" ({len(not_radiance)} files skipped: frames or confidence maps)" if not_radiance else ""
+        print(f"{prog}: error: no {wanted} found in {source}{also}", file=sys.stderr)
         return 1
     try:
         report = run_batch(
@@ -512,11 +565,28 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
         where = f"rank {env.rank}: "
         if report.parts is None:  # this rank's own part (rank 0 holds the merged report under torchrun)
             report_file = report_file.with_name(f"{report_file.stem}.rank{env.rank}{report_file.suffix}")
+    if not_radiance and (env.world_size == 1 or report.parts is not None):
+        _add_skipped(report, not_radiance, report_file, prog)
     print(f"{where}{report.summary()} (report: {report_file})", file=sys.stderr)
     scores = _accuracy_summary(report.done)
     if scores:
         print(f"{where}{prog}: {scores}", file=sys.stderr)
     return report.exit_code
+
+
+def _add_skipped(report: Any, entries: Sequence[dict[str, Any]], report_file: Path, prog: str) -> None:
+    """Add inputs skipped before the run (``tonemap``: frames, confidence maps) to the report and its file."""
+    from torch_modulo._atomic import write_json
+
+    report.skipped.extend(entries)
+    report.total += len(entries)
+    report.sort()
+    for entry in entries:
+        print(f"{prog}: skipped {entry['input']}: {entry['reason']}", file=sys.stderr)
+    try:
+        write_json(report_file, report.to_dict())
+    except OSError as error:
+        report.errors.append(f"the report could not be written: {type(error).__name__}: {error}")
 
 
 def _accuracy_summary(done: Sequence[dict[str, Any]]) -> str:
@@ -551,10 +621,33 @@ def _run_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Options whose value may start with a minus sign (``--exposures -1,16``: refused by name, not by argparse).
+_NUMERIC_OPTIONS = ("--exposures", "--exposure", "--scale", "--ratio", "--bits", "--seed", "--workers")
+
+
+def _values_attached(argv: Sequence[str]) -> list[str]:
+    """``argv`` with ``--exposures -1,16`` written ``--exposures=-1,16``: argparse takes a value that starts with
+    ``-`` (other than a plain negative number) for an option and fails with "expected one argument"; attached,
+    the option's type refuses the value, naming it."""
+    out: list[str] = []
+    items = list(argv)
+    i = 0
+    while i < len(items):
+        item = items[i]
+        following = items[i + 1] if i + 1 < len(items) else ""
+        if item in _NUMERIC_OPTIONS and following[:1] == "-" and following[1:2] in set("0123456789."):
+            out.append(f"{item}={following}")
+            i += 2
+            continue
+        out.append(item)
+        i += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``torch-modulo``; returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_values_attached(sys.argv[1:] if argv is None else argv))
     if args.command == "demo":
         return _run_demo(args)
     return _run_folder_command(parser, args)

@@ -1,7 +1,8 @@
 """Data pipelines: a Dataset of HDR radiance maps, and a Kornia augmentation that simulates a modulo capture.
 
-:class:`HDRFolder` reads EXR/HDR/PFM files with OpenImageIO inside ``__getitem__`` (it holds only paths), so it
-works with ``DataLoader(num_workers=...)``. :class:`RandomModuloCapture` is an
+:class:`HDRFolder` reads EXR/HDR/PFM/TIFF files (those the command line reads) with OpenImageIO inside
+``__getitem__`` (it holds only paths), so it works with ``DataLoader(num_workers=...)``; with ``skip_bad=True`` a bad
+file is skipped and reported instead of stopping the DataLoader. :class:`RandomModuloCapture` is an
 :class:`~kornia.augmentation.IntensityAugmentationBase2D`: it draws one exposure per sample and returns the modulus
 image (Eq. 1), optionally through the sensor noise model, inside ``AugmentationSequential`` or a DataLoader.
 
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -30,13 +32,13 @@ from torch.utils.data import Dataset
 
 from torch_modulo._checks import check_bits, check_choice, check_flag
 from torch_modulo.capture import capture_modulo
-from torch_modulo.radiance import NONFINITE, load_radiance
+from torch_modulo.radiance import NONFINITE, RADIANCE_EXTENSIONS, load_radiance
 from torch_modulo.sensors.simulated import NoiseModel, simulate_capture
 
 __all__ = ["HDR_EXTENSIONS", "HDRFolder", "RandomModuloCapture"]
 
-#: Radiance map formats :class:`HDRFolder` collects.
-HDR_EXTENSIONS = (".exr", ".hdr", ".pfm")
+#: Radiance map formats :class:`HDRFolder` collects: those the command line reads (EXR, HDR, PFM, TIFF).
+HDR_EXTENSIONS = RADIANCE_EXTENSIONS
 
 
 def _size(value: int | Sequence[int] | None, name: str) -> tuple[int, int] | None:
@@ -85,13 +87,21 @@ class HDRFolder(Dataset):
             radiance is beyond their range instead of turning it into infinities: use ``normalize``).
         nonfinite: ``"replace"`` (default) or ``"raise"``: what reading an item does with NaN and infinite
             values. A file with no finite value at all is refused either way.
+        linear: take integer (8/16-bit TIFF or PNG) files as linear radiance; by default they are refused, naming
+            the file, since their values are display-referred (see :func:`torch_modulo.radiance.load_radiance`).
+        skip_bad: an item that cannot be read or shaped (an unreadable file, NaN refused, smaller than the crop,
+            a display-referred file) is skipped instead of raising: a warning names the file and the error, the
+            next good item (in path order, wrapping around) is given in its place, and :attr:`skipped` maps each
+            skipped file to its error (per process: each DataLoader worker keeps its own). An epoch then holds
+            some items twice; all files failing raises.
 
     Raises:
         FileNotFoundError: ``root`` does not exist.
         ValueError: no files found, bad sizes or options; when reading an item, an image smaller than the crop, NaN
             or infinite values it may not replace (the message names the file and counts them), or radiance beyond
             ``dtype``'s range.
-        TypeError: a flag (``recursive``, ``random_crop``, ``return_path``) that is not a bool.
+        TypeError: a flag (``recursive``, ``random_crop``, ``return_path``, ``linear``, ``skip_bad``) that is not a
+            bool.
         OSError: an item cannot be read (the message names the file).
 
     Example:
@@ -119,6 +129,8 @@ class HDRFolder(Dataset):
         return_path: bool = False,
         dtype: torch.dtype = torch.float32,
         nonfinite: str = "replace",
+        linear: bool = False,
+        skip_bad: bool = False,
     ) -> None:
         root = Path(root)
         if not root.is_dir():
@@ -165,13 +177,18 @@ class HDRFolder(Dataset):
             raise TypeError(f"dtype must be a floating torch dtype; got {dtype}")
         self.dtype = dtype
         self.nonfinite = check_choice(nonfinite, "nonfinite", NONFINITE)
+        self.extensions = exts
+        self.linear = check_flag(linear, "linear")
+        self.skip_bad = check_flag(skip_bad, "skip_bad")
+        #: Files skipped with ``skip_bad`` (in this process), each with its error.
+        self.skipped: dict[str, str] = {}
 
     def __len__(self) -> int:
         return len(self.paths)
 
     def load(self, index: int) -> torch.Tensor:
         """Read item ``index`` before resizing, scaling and cropping: a (C, H, W) float32 radiance map >= 0."""
-        image = load_radiance(self.paths[index], channels=self.channels, nonfinite=self.nonfinite)
+        image = load_radiance(self.paths[index], channels=self.channels, nonfinite=self.nonfinite, linear=self.linear)
         assert isinstance(image, torch.Tensor)
         return image
 
@@ -212,6 +229,32 @@ class HDRFolder(Dataset):
         if not -len(self) <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} files")
         index %= len(self)
+        if not self.skip_bad:
+            image = self._item(index)
+        else:
+            image, index = self._first_good(index)
+        if self.transform is not None:
+            image = self.transform(image)
+        return (image, str(self.paths[index])) if self.return_path else image
+
+    def _first_good(self, index: int) -> tuple[torch.Tensor, int]:
+        """Item ``index``, or the next that loads (``skip_bad``), and its index."""
+        failed: list[str] = []
+        for step in range(len(self)):
+            n = (index + step) % len(self)
+            try:
+                image = self._item(n)
+            except (OSError, ValueError) as error:
+                self.skipped[str(self.paths[n])] = reason = f"{type(error).__name__}: {error}"
+                failed.append(f"{self.paths[n]} ({reason})")
+                continue
+            for skipped in failed:
+                warnings.warn(f"HDRFolder: skipped {skipped}; gave {self.paths[n]} in its place", stacklevel=3)
+            return image, n
+        raise ValueError(f"every file of {self.root} failed to load; the last: {failed[-1]}")
+
+    def _item(self, index: int) -> torch.Tensor:
+        """Item ``index`` read, resized, scaled and cropped, in the dataset's dtype (before ``transform``)."""
         path = self.paths[index]
         image = self._resized(self.load(index))
         if self.normalize is not None:
@@ -228,10 +271,7 @@ class HDRFolder(Dataset):
                     f"{path}: radiance reaches {top:.6g}, beyond the largest {self.dtype} ({limit:.6g}); "
                     "scale it with normalize= or load it as float32"
                 )
-        image = image.to(self.dtype)
-        if self.transform is not None:
-            image = self.transform(image)
-        return (image, str(path)) if self.return_path else image
+        return image.to(self.dtype)
 
     def __repr__(self) -> str:
         return f"HDRFolder({str(self.root)!r}, {len(self)} files, resize={self.resize}, crop={self.crop})"

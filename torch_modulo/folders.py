@@ -18,18 +18,71 @@ Example:
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from torch_modulo._task import Task
 from torch_modulo.batch.tasks import discover
 from torch_modulo.radiance import RADIANCE_EXTENSIONS
-from torch_modulo.sensors.files import MANIFEST
+from torch_modulo.sensors.files import MANIFEST, frame_bits, frame_exposure, stack_files
 
-__all__ = ["MODULUS_EXTENSIONS", "count_values", "folder_tasks"]
+__all__ = ["CONFIDENCE_UNIT", "MODULUS_EXTENSIONS", "count_values", "folder_tasks", "not_radiance", "radiance_tasks"]
 
 #: Modulus images ``unwrap --single`` reads.
 MODULUS_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm")
+#: The unit ``unwrap --confidence`` records in its confidence maps.
+CONFIDENCE_UNIT = "confidence in [0, 1]"
+#: The ground truth a frame stack holds beside its frames (radiance: tone-mapped like any other).
+_TRUTH_FILE = "radiance.exr"
+
+
+def not_radiance(path: str | Path) -> str | None:
+    """Why the image file ``path`` is not radiance by its own record, or None when nothing says so.
+
+    A file is a frame when the ``frames.json`` beside it lists it, or when its metadata records a bit depth and an
+    exposure but no unit (as :func:`~torch_modulo.sensors.write_frames` writes frames; radiance from ``unwrap``
+    records ``"unit"``); it is a confidence map when its metadata's unit is :data:`CONFIDENCE_UNIT`. A file whose
+    header cannot be read is left for the job to refuse with its own message.
+
+    Example:
+        >>> import os, tempfile, torch
+        >>> from torch_modulo.io import write_image
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     path = write_image(os.path.join(folder, "c.exr"), torch.zeros(1, 2, 2), {"unit": CONFIDENCE_UNIT})
+        ...     not_radiance(path)
+        'a confidence map (unwrap --confidence), values in [0, 1]'
+    """
+    from torch_modulo.io import read_metadata
+
+    path = Path(path)
+    if path.name != _TRUTH_FILE and path.name in stack_files(path.parent) - {MANIFEST}:
+        return f"a frame of a modulo camera, listed in {path.parent / MANIFEST}: unwrap the stack, then tone-map that"
+    try:
+        meta = read_metadata(path)
+        if meta.get("unit") == CONFIDENCE_UNIT:
+            return "a confidence map (unwrap --confidence), values in [0, 1]"
+        framed = frame_bits(meta, path) is not None and frame_exposure(meta, path) is not None
+    except (OSError, ValueError):
+        return None
+    if framed and meta.get("unit") is None:
+        return "a frame of a modulo camera (its metadata records bits and exposure, no unit): unwrap it first"
+    return None
+
+
+def radiance_tasks(tasks: Sequence[Task], out: Path) -> tuple[list[Task], list[dict[str, Any]]]:
+    """The tasks whose inputs are radiance, and report entries (``input``, ``outputs``, ``reason``) for the others:
+    frames and confidence maps, which ``tonemap`` skips (:func:`not_radiance`)."""
+    kept, skipped = [], []
+    for task in tasks:
+        reason = not_radiance(task.source)
+        if reason is None:
+            kept.append(task)
+        else:
+            outputs = [os.path.relpath(o, out) for o in task.outputs]
+            skipped.append({"input": task.name, "outputs": outputs, "reason": f"not radiance: {reason}"})
+    return kept, skipped
 
 
 def folder_tasks(

@@ -54,6 +54,8 @@ from torch_modulo._scene_rules import (
     radiance_accuracy,
     restored_colour,
     restored_confidence,
+    shrink_scene,
+    undecodable_ratio,
     unsafe_ratio_warnings,
 )
 from torch_modulo._task import Task
@@ -132,7 +134,18 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
 
     Options: ``bits``, ``exposures`` (``"auto"``: :func:`plan_scene`; or a list), ``noise`` (None, a preset name
     or :class:`~torch_modulo.sensors.NoiseModel` fields), ``seed``, ``scale`` (``"auto"`` or a number),
-    ``format``, ``truth`` and, optionally, ``nonfinite`` and ``cfa``. The scaling rules are in the module docstring.
+    ``format``, ``truth`` and, optionally, ``nonfinite``, ``cfa``, ``linear``, ``force_exposures``, ``max_side``
+    and ``crop``. The scaling rules are in the module docstring.
+
+    ``max_side`` (an int) shrinks the scene first by area averaging, by the smallest integer factor that brings its
+    longer side to at most that (:func:`torch_modulo.protocols.downsample_area`, as the benchmarks do); ``crop``
+    ((height, width)) then keeps its centre; a scene smaller than the crop is refused, naming it.
+
+    Given exposures with two neighbours more than ``2**bits`` apart, which rollover counting cannot decode, are
+    refused before anything is written, unless ``force_exposures`` is True (the report then warns).
+
+    A display-referred input (an 8/16-bit PNG or TIFF: a photo's sRGB-encoded integers) is refused, naming it,
+    unless ``linear`` is True (the caller says its integers are linear radiance, as a raw camera export's are).
 
     With ``cfa`` (``"RGGB"``, ``"BGGR"``, ``"GRBG"`` or ``"GBRG"``) the sensor is a colour sensor: the frames are
     mosaics (1, H, W) with the pattern in the stack's metadata, and the truth stays RGB. A scene that is not RGB is
@@ -145,14 +158,25 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     bits = int(options["bits"])
     nonfinite = options.get("nonfinite", "replace")
     noise = noise_model(options["noise"])
-    image, counts = load_radiance(task.source, nonfinite=nonfinite, dtype=torch.float64, with_counts=True)
+    notes: list[str] = []
+    if options["exposures"] != "auto" and (too_far := undecodable_ratio(options["exposures"], bits)):
+        if not check_flag(options.get("force_exposures", False), "force_exposures"):
+            raise ValueError(
+                f"{too_far}: unwrap cannot count the rollovers between them, so nothing was written; choose "
+                "exposures at most 2^bits apart, --exposures auto, or force_exposures=True (--force-exposures)"
+            )
+        notes.append(f"{too_far}: unwrap cannot count the rollovers between them (written as forced)")
+    linear = check_flag(options.get("linear", False), "linear")  # display-referred files are refused unless True
+    image, counts = load_radiance(
+        task.source, nonfinite=nonfinite, dtype=torch.float64, with_counts=True, linear=linear
+    )
     if not float(image.max()) > 0:
         raise ValueError(f"{task.source} is black (maximum {float(image.max())}): there is nothing to capture")
+    image, facts = shrink_scene(image, options.get("max_side"), options.get("crop"), task.source)
     cfa = options.get("cfa")
-    notes: list[str] = []
-    facts: dict[str, Any] = {}
     if cfa is not None:
-        image, notes = colour_scene(image, cfa, task.source)
+        image, cropped = colour_scene(image, cfa, task.source)
+        notes += cropped
         facts["cfa"] = cfa
     if options["exposures"] == "auto":
         taus, scale, facts["stops"] = plan_scene(image, bits, noise, scale=options["scale"])
@@ -318,6 +342,7 @@ def _single_frame(
 
 
 def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, Any], dict[str, Any]]:
+    from torch_modulo.folders import CONFIDENCE_UNIT
     from torch_modulo.io import write_image
     from torch_modulo.metrics import psnr
     from torch_modulo.singleshot import unwrap_single
@@ -351,7 +376,7 @@ def _unwrap_single_job(task: Task, options: Mapping[str, Any]) -> tuple[torch.Te
             confidence = solved.confidence[0]
         else:
             confidence = restored_confidence(counts.double(), bits, cfa)
-        write_image(task.outputs[1], confidence.float(), {**metadata, "unit": "confidence in [0, 1]"})
+        write_image(task.outputs[1], confidence.float(), {**metadata, "unit": CONFIDENCE_UNIT})
     info: dict[str, Any] = {}
     counts_truth = matching_truth(truth, counts.shape, cfa)
     if counts_truth is not None:
@@ -442,9 +467,17 @@ def tonemap_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
 
     Options: ``op`` (one of :data:`TONEMAP_OPS`), ``params`` (the operator's keyword arguments), ``srgb``,
     ``depth`` (8 or 16 bits) and, optionally, ``nonfinite``.
+
+    A file whose own record says it is not radiance (a frame of a modulo camera, a confidence map:
+    :func:`torch_modulo.folders.not_radiance`) is refused; the command line skips such files and reports them.
     """
     from torch_modulo import tonemap
+    from torch_modulo.folders import not_radiance
     from torch_modulo.io import write_image
+
+    reason = not_radiance(task.source)
+    if reason is not None:
+        raise ValueError(f"{task.source} is not radiance: {reason}")
 
     hdr, counts = load_radiance(task.source, nonfinite=options.get("nonfinite", "replace"), with_counts=True)
     operator = getattr(tonemap, f"tonemap_{options['op']}")

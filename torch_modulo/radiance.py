@@ -4,6 +4,10 @@ The command line's jobs (:mod:`torch_modulo.pipeline`), :class:`torch_modulo.dat
 radiance through it, with one policy for values a radiance map cannot hold:
 
 - **Negative values** (lossy compression and sensor processing leave small ones) are clamped to 0, always.
+- **Display-referred files** (8/16-bit PNG and TIFF, the integers of a photo, sRGB-encoded for a screen) are not
+  radiance. ``linear=False`` refuses them, naming the file; ``linear=True`` is the caller saying their integers are
+  linear (a raw camera export); the default, None, reads them as stored. ``torch-modulo simulate`` refuses them
+  unless given ``--linear``.
 - **NaN and infinite values** are replaced by default (``nonfinite="replace"``): NaN and -Inf by 0, +Inf by the
   largest finite value of the image (an overflowed pixel is at least as bright as the brightest one that did
   not overflow). ``nonfinite="raise"`` refuses such a file instead, naming it and how many of each it holds. A
@@ -23,12 +27,13 @@ from __future__ import annotations
 
 import os
 
+import OpenImageIO as oiio
 import torch
 
 from torch_modulo._checks import check_choice, check_flag
 from torch_modulo.io import read_image
 
-__all__ = ["NONFINITE", "RADIANCE_EXTENSIONS", "load_radiance"]
+__all__ = ["NONFINITE", "RADIANCE_EXTENSIONS", "display_referred", "load_radiance"]
 
 #: Radiance files the folder commands ``simulate`` and ``tonemap`` read.
 RADIANCE_EXTENSIONS = (".exr", ".hdr", ".pfm", ".tif", ".tiff")
@@ -36,6 +41,55 @@ RADIANCE_EXTENSIONS = (".exr", ".hdr", ".pfm", ".tif", ".tiff")
 NONFINITE = ("replace", "raise")
 
 _CHANNELS = (None, 1, 3, "auto")
+_INTEGER_TYPES = {
+    oiio.UINT8: 8,
+    oiio.INT8: 8,
+    oiio.UINT16: 16,
+    oiio.INT16: 16,
+    oiio.UINT32: 32,
+    oiio.INT32: 32,
+}
+
+
+def display_referred(path: str | os.PathLike[str]) -> str | None:
+    """What makes an image file display-referred rather than radiance: its integer samples (``"8-bit integers"``),
+    or None for a float file (EXR, HDR, PFM, float TIFF). Only the header is read.
+
+    Raises:
+        FileNotFoundError, OSError: the file cannot be opened (the message names it).
+
+    Example:
+        >>> import tempfile
+        >>> from torch_modulo.io import write_image
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     png = write_image(os.path.join(folder, "x.png"), torch.zeros(1, 2, 2), dtype="uint8")
+        ...     exr = write_image(os.path.join(folder, "x.exr"), torch.zeros(1, 2, 2))
+        ...     display_referred(png), display_referred(exr)
+        ('8-bit integers', None)
+    """
+    if not os.path.exists(path):
+        raise FileNotFoundError(2, "image file not found", str(path))
+    image = oiio.ImageInput.open(str(path))
+    if image is None:
+        raise OSError(f"cannot read image {path}: {oiio.geterror()}")
+    try:
+        spec = image.spec()
+        formats = list(spec.channelformats) or [spec.format]
+    finally:
+        image.close()
+    bits = [_INTEGER_TYPES.get(f.basetype) for f in formats]
+    return f"{max(b for b in bits if b)}-bit integers" if any(bits) else None
+
+
+def _refuse_display_referred(path: str | os.PathLike[str]) -> None:
+    what = display_referred(path)
+    if what is not None:
+        raise ValueError(
+            f"{path} holds {what}, display-referred values (a photo encoded for a screen, not radiance): it would be "
+            "captured as if its encoded values were light. Give a linear radiance file (EXR, HDR, PFM or float "
+            "TIFF), or, if its integers are linear (a raw camera export), say so: linear=True (torch-modulo "
+            "simulate --linear)"
+        )
 
 
 def _used_channels(image: torch.Tensor, channels: int | str | None, source: object) -> torch.Tensor:
@@ -68,6 +122,7 @@ def load_radiance(
     nonfinite: str = "replace",
     dtype: torch.dtype = torch.float32,
     with_counts: bool = False,
+    linear: bool | None = None,
 ) -> torch.Tensor | tuple[torch.Tensor, dict[str, int]]:
     """Read a radiance file as a (C, H, W) tensor of finite values >= 0 (the policy in the module docstring).
 
@@ -81,14 +136,18 @@ def load_radiance(
         dtype: ``torch.float32`` (default) or ``torch.float64``.
         with_counts: also return how many values were replaced or clamped: ``{"nan", "posinf", "neginf",
             "negative"}``.
+        linear: what integer (8/16-bit, display-referred) files are: ``False`` refuses them (:func:`display_referred`
+            names what the file holds), ``True`` reads their integers as linear radiance, None (default) reads them
+            as stored, without an opinion.
 
     Returns:
         The radiance, or ``(radiance, counts)`` with ``with_counts=True``.
 
     Raises:
         FileNotFoundError, OSError: the file cannot be read (the message names it).
-        ValueError: NaN or infinite values with ``nonfinite="raise"``, no finite value at all, no channels, or a
-            bad argument.
+        ValueError: NaN or infinite values with ``nonfinite="raise"``, no finite value at all, no channels, an
+            integer file with ``linear=False``, or a bad argument.
+        TypeError: ``with_counts`` is not a bool, or ``linear`` not a bool or None.
 
     Example:
         >>> import tempfile
@@ -104,6 +163,10 @@ def load_radiance(
     check_choice(channels, "channels", _CHANNELS, what="1, 3, 'auto' or None")
     check_choice(nonfinite, "nonfinite", NONFINITE)
     check_flag(with_counts, "with_counts")
+    if linear is not None and not isinstance(linear, bool):
+        raise TypeError(f"linear must be a bool or None; got {linear!r} ({type(linear).__name__})")
+    if linear is False:
+        _refuse_display_referred(path)
     image = read_image(path, dtype=dtype)
     image = _used_channels(image, channels, path)
     counts = {

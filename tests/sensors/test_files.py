@@ -148,11 +148,18 @@ class TestCameraFolders:
     def test_hand_written_manifest(self, tmp_path: Path) -> None:
         frames = self._camera_frames(tmp_path)
         (tmp_path / MANIFEST).write_text(
-            json.dumps({"bits": 13, "frames": [{"file": "cap_1.png", "exposure": 5.0}, "cap_0.png"]})
+            json.dumps({"bits": 12, "frames": [{"file": "cap_1.png", "exposure": 20.0}, "cap_0.png"]})
         )
         stack = FileSensor(tmp_path).read()  # cap_0's exposure comes from its sidecar
         assert torch.equal(stack.moduli[0], frames[[1, 0]])
-        assert stack.exposures.tolist() == [5.0, 2.0] and stack.bits == 13
+        assert stack.exposures.tolist() == [20.0, 2.0] and stack.bits == 12
+        # A manifest that contradicts the sidecars is refused (it used to override them silently).
+        (tmp_path / MANIFEST).write_text(json.dumps({"bits": 12, "frames": [{"file": "cap_1.png", "exposure": 5.0}]}))
+        with pytest.raises(
+            ValueError, match=r"exposure 5 for frame cap_1\.png, but .*cap_1\.png\.json records exposure 20"
+        ):
+            FileSensor(tmp_path).read()
+        assert FileSensor(tmp_path, exposures=[5.0]).read().exposures.tolist() == [5.0]  # the argument overrides
 
     def test_foreign_exr_attributes(self, tmp_path: Path) -> None:
         """EXR frames written by another program with exposure and bits as native attributes."""
@@ -343,7 +350,7 @@ class TestErrors:
             FileSensor(tmp_path)
         missing = dict(manifest, frames=manifest["frames"][:-1])
         (tmp_path / MANIFEST).write_text(json.dumps(missing))
-        with pytest.raises(ValueError, match=r"no frame for \(batch, exposure\) \(1, 1\) of a 2 x 2 stack"):
+        with pytest.raises(ValueError, match=r"no frame for exposure 2 of scene 1 .* of a 2 x 2 stack"):
             FileSensor(tmp_path).read()
         disagree = dict(manifest, exposures=[1.0, 3.0])
         (tmp_path / MANIFEST).write_text(json.dumps(disagree))
@@ -522,3 +529,70 @@ class TestFrameMetadata:
         (tmp_path / "s" / "notes.txt").write_text("mine")
         assert stack_files(tmp_path / "s") == {"frames.json", "frame_b000_m00.exr", "frame_b000_m01.exr"}
         assert stack_files(tmp_path / "missing") == {"frames.json"}
+
+
+class TestManifestAgreesWithTheFrames:
+    """The manifest never silently overrides what the frames record: a disagreement or an unknown value is refused,
+    naming both sides (regression: frames.json with "bits": 9 over 8-bit frames decoded up to 95% wrong)."""
+
+    @staticmethod
+    def _stack(folder: Path, cfa: str | None = None) -> dict:
+        shape = (1, 3, 1, 4, 4)
+        stack = FrameStack(_moduli(shape, 8), [1.0, 16.0, 256.0], 8, cfa=cfa)
+        write_frames(stack, folder, format="png")
+        return json.loads((folder / MANIFEST).read_text())
+
+    def test_manifest_bits_that_disagree_with_the_frames_are_refused(self, tmp_path: Path) -> None:
+        manifest = self._stack(tmp_path)
+        (tmp_path / MANIFEST).write_text(json.dumps(dict(manifest, bits=9)))
+        with pytest.raises(ValueError, match=r"frames\.json.*bits 9.*frame_b000_m00\.png.*bits 8"):
+            FileSensor(tmp_path).read()
+        assert FileSensor(tmp_path, bits=8).read().bits == 8  # the argument is the caller's own override
+
+    def test_manifest_cfa_that_disagrees_with_the_frames_is_refused(self, tmp_path: Path) -> None:
+        manifest = self._stack(tmp_path, cfa="RGGB")
+        metadata = {**manifest["metadata"], "cfa": "GBRG"} if "cfa" in manifest["metadata"] else manifest["metadata"]
+        (tmp_path / MANIFEST).write_text(json.dumps(dict(manifest, cfa="GBRG", metadata=metadata)))
+        with pytest.raises(ValueError, match=r"frames\.json.*cfa 'GBRG'.*frame_b000_m00\.png.*cfa 'RGGB'"):
+            FileSensor(tmp_path).read()
+
+    def test_a_frame_exposure_that_disagrees_with_the_frame_is_refused(self, tmp_path: Path) -> None:
+        manifest = self._stack(tmp_path)
+        manifest["frames"][1]["exposure"] = 8.0
+        manifest["exposures"] = [1.0, 8.0, 256.0]
+        (tmp_path / MANIFEST).write_text(json.dumps(manifest))
+        with pytest.raises(ValueError, match=r"frames\.json.*exposure 8.*frame_b000_m01\.png.*exposure 16"):
+            FileSensor(tmp_path).read()
+
+    @pytest.mark.parametrize("name", ["int37", "float128", 32])
+    def test_an_unknown_dtype_is_refused(self, tmp_path: Path, name: object) -> None:
+        manifest = self._stack(tmp_path)
+        (tmp_path / MANIFEST).write_text(json.dumps(dict(manifest, dtype=name)))
+        with pytest.raises(ValueError, match=rf"frames\.json: dtype must be one of .*; got {name!r}"):
+            FileSensor(tmp_path).read()
+
+    def test_a_shape_that_disagrees_with_the_frames_is_refused(self, tmp_path: Path) -> None:
+        manifest = self._stack(tmp_path)
+        (tmp_path / MANIFEST).write_text(json.dumps(dict(manifest, shape=[1, 3, 1, 8, 8])))
+        with pytest.raises(ValueError, match=r"frames\.json: shape \[1, 3, 1, 8, 8\] disagrees with the frames'"):
+            FileSensor(tmp_path).read()
+
+    @pytest.mark.parametrize("removed, exposure", [(1, "16"), (2, "256"), (0, "1")])
+    def test_a_missing_frame_names_its_exposure(self, tmp_path: Path, removed: int, exposure: str) -> None:
+        manifest = self._stack(tmp_path)
+        del manifest["frames"][removed]
+        (tmp_path / MANIFEST).write_text(json.dumps(manifest))
+        with pytest.raises(ValueError, match=rf"frames\.json: no frame for exposure {exposure}\b"):
+            FileSensor(tmp_path).read()
+
+    def test_a_missing_frame_of_a_hand_written_manifest_names_its_exposure(self, tmp_path: Path) -> None:
+        manifest = self._stack(tmp_path)
+        frames = [{"file": f["file"]} for i, f in enumerate(manifest["frames"]) if i != 1]
+        (tmp_path / MANIFEST).write_text(json.dumps({"bits": 8, "exposures": [1, 16, 256], "frames": frames}))
+        with pytest.raises(ValueError, match=r"frames\.json: no frame for exposure 16\b"):
+            FileSensor(tmp_path).read()
+
+    def test_agreeing_manifests_still_read(self, tmp_path: Path) -> None:
+        self._stack(tmp_path, cfa="BGGR")
+        stack = FileSensor(tmp_path).read()
+        assert stack.bits == 8 and stack.cfa == "BGGR" and stack.exposures.tolist() == [1.0, 16.0, 256.0]

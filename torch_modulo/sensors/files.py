@@ -1,6 +1,9 @@
 """Frames of a real modulo camera from disk, and FrameStacks written to disk so that they read back identically.
 
-Where :class:`FileSensor` finds each frame's exposure and the bit depth, first match wins:
+Where :class:`FileSensor` finds each frame's exposure and the bit depth: the arguments override everything; the
+records below describe the frames and must agree where several give a value (a manifest's ``"bits": 9`` over frames
+that record 8 bits is refused, naming both, as are a disagreeing ``"cfa"``, exposure or ``"shape"`` and an unknown
+``"dtype"``; see :mod:`torch_modulo.sensors.manifest`):
 
 1. the arguments ``exposures=`` (one per file, in file order) and ``bits=``;
 2. a folder manifest ``frames.json`` (written by :func:`write_frames`; also easy to write by hand)::
@@ -37,19 +40,37 @@ from __future__ import annotations
 import errno
 import json
 import os
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import torch
 
 from torch_modulo._atomic import replace_folder
-from torch_modulo._checks import check_bits, check_choice, check_int, check_modulus, check_real
+from torch_modulo._checks import check_bits, check_choice, check_int, check_modulus
 from torch_modulo.cfa import check_cfa
 from torch_modulo.io import read_image, write_image
 from torch_modulo.sensors.frames import KINDS, FrameStack
+from torch_modulo.sensors.manifest import (
+    DTYPES,
+    MANIFEST,
+    Frame,
+    bits_value,
+    check_manifest_cfa,
+    check_manifest_shape,
+    frame_bits,
+    frame_exposure,
+    frame_record,
+    from_source,
+    load_json,
+    place_frames,
+    positive_value,
+    read_manifest,
+    sidecar,
+    stored_exposures,
+)
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -62,15 +83,9 @@ __all__ = [
     "write_frames",
 ]
 
-#: The folder manifest :func:`write_frames` writes and :class:`FileSensor` reads first.
-MANIFEST = "frames.json"
 #: Image files a folder is searched for.
 IMAGE_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm", ".hdr")
-_EXPOSURE_KEYS = ("exposure", "exposure_time", "ExposureTime")
-_BITS_KEYS = ("bits", "bit_depth")
 _FORMAT_TAG = "torch_modulo.frames"
-_T = TypeVar("_T")
-_DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32, "float64": torch.float64}
 
 
 @dataclass(frozen=True)
@@ -169,122 +184,6 @@ def _raw_extensions(extensions: object) -> tuple[str, ...]:
     return tuple(out)
 
 
-# --------------------------------------------------------------------------------------------- helpers
-
-
-def _load_json(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise OSError(f"cannot read {path}: {exc}") from exc
-    except ValueError as exc:
-        raise ValueError(f"{path} is not valid JSON: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ValueError(f"{path} must hold a JSON object; got {type(data).__name__}")
-    return data
-
-
-def _first(mapping: Mapping[str, Any], keys: Sequence[str]) -> Any:
-    for key in keys:
-        if key in mapping and mapping[key] is not None:
-            return mapping[key]
-    return None
-
-
-def _from_source(check: Callable[..., _T], value: Any, *args: Any, **kwargs: Any) -> _T:
-    """Run a scalar check on a value read from a file or given for one: any failure is a ``ValueError``."""
-    try:
-        return check(value, *args, **kwargs)
-    except TypeError as exc:
-        raise ValueError(str(exc)) from None
-
-
-def _positive(value: Any, what: str, source: object) -> float:
-    return _from_source(check_real, value, f"{what} from {source}", positive=True, what="a positive finite number")
-
-
-def _bits_value(value: Any, source: object) -> int:
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    value = _from_source(check_int, value, f"bits from {source}")
-    try:
-        return check_bits(value, torch.float64)
-    except ValueError as exc:
-        raise ValueError(f"bits from {source}: {exc}") from None
-
-
-def frame_exposure(metadata: Mapping[str, Any], source: object) -> float | None:
-    """The exposure a frame's metadata or sidecar records, checked as :class:`FileSensor` checks it.
-
-    Args:
-        metadata: the frame's metadata (:func:`torch_modulo.io.read_metadata`) or its sidecar's JSON object.
-        source: where ``metadata`` comes from, for the error message (``"the metadata of a.png"``).
-
-    Returns:
-        The value of ``"exposure"``, ``"exposure_time"`` or ``"ExposureTime"`` (the first one present), or None
-        when ``metadata`` records none.
-
-    Raises:
-        ValueError: the value is not a positive finite number; the message names ``source``.
-
-    Example:
-        >>> frame_exposure({"ExposureTime": 4}, "a.png"), frame_exposure({}, "a.png")
-        (4.0, None)
-    """
-    value = _first(metadata, _EXPOSURE_KEYS)
-    return None if value is None else _positive(value, "exposure", source)
-
-
-def frame_bits(metadata: Mapping[str, Any], source: object) -> int | None:
-    """The bit depth a frame's metadata or sidecar records, checked as :class:`FileSensor` checks it.
-
-    Args:
-        metadata: the frame's metadata (:func:`torch_modulo.io.read_metadata`) or its sidecar's JSON object.
-        source: where ``metadata`` comes from, for the error message.
-
-    Returns:
-        The value of ``"bits"`` or ``"bit_depth"`` (the first one present; a whole float such as ``8.0`` counts),
-        or None when ``metadata`` records none.
-
-    Raises:
-        ValueError: the value is not a whole number, is below 1, or has more bits than float64 holds exactly; the
-            message names ``source``.
-
-    Example:
-        >>> frame_bits({"bit_depth": 12.0}, "a.png"), frame_bits({}, "a.png")
-        (12, None)
-    """
-    value = _first(metadata, _BITS_KEYS)
-    return None if value is None else _bits_value(value, source)
-
-
-def _inside(manifest: Path, name: str) -> Path:
-    """The frame file ``name`` listed in ``manifest``, refused when the name leads out of the manifest's folder."""
-    relative = os.path.normpath(name)
-    if os.path.isabs(relative) or relative == os.pardir or relative.startswith(os.pardir + os.sep):
-        raise ValueError(
-            f"{manifest}: frame file {name!r} points outside the stack folder {manifest.parent}; "
-            "list frames by their names inside that folder"
-        )
-    return manifest.parent / relative
-
-
-def _sidecar(path: Path) -> Path | None:
-    for candidate in (path.with_name(path.name + ".json"), path.with_suffix(".json")):
-        if candidate.is_file():
-            return candidate
-    return None
-
-
-@dataclass
-class _Frame:
-    path: Path
-    exposure: float | None = None
-    bits: int | None = None
-    batch: int = 0
-    index: int | None = None
-
-
 # ---------------------------------------------------------------------------------------------- reading
 
 
@@ -308,8 +207,10 @@ class FileSensor:
         FileNotFoundError: the folder or a file is missing.
         OSError: a file cannot be read (not an image, truncated, ...).
         ValueError: no frames, missing or bad exposure or bit depth, frames of different sizes, values not
-            integers in ``[0, 2**bits)``, a raw file of the wrong size, a bad manifest, an unknown or disagreeing
-            colour filter array, or one given for frames that are not mosaics.
+            integers in ``[0, 2**bits)``, a raw file of the wrong size, a bad manifest (an unknown ``"dtype"``, a
+            missing frame, named by its exposure), a manifest whose bits, exposure, colour filter array or shape
+            disagree with what the frames record (both named), an unknown or disagreeing colour filter array, or
+            one given for frames that are not mosaics.
 
     Example:
         >>> import tempfile
@@ -335,15 +236,17 @@ class FileSensor:
     ) -> None:
         if raw is not None and not isinstance(raw, RawFormat):
             raise TypeError(f"raw must be a RawFormat or None; got {type(raw).__name__}")
-        if dtype is not None and dtype not in _DTYPES.values():
+        if dtype is not None and dtype not in DTYPES.values():
             raise TypeError(f"dtype must be a floating torch dtype; got {dtype}")
         if kind is not None:
             check_choice(kind, "kind", KINDS)
         self.raw = raw
-        self.bits = _bits_value(bits, "the bits argument") if bits is not None else None
+        self.bits = bits_value(bits, "the bits argument") if bits is not None else None
         if exposures is not None:
             values = exposures.tolist() if isinstance(exposures, torch.Tensor) else list(exposures)
-            self.exposures: list[float] | None = [_positive(v, "exposure", "the exposures argument") for v in values]
+            self.exposures: list[float] | None = [
+                positive_value(v, "exposure", "the exposures argument") for v in values
+            ]
         else:
             self.exposures = None
         self.kind = kind
@@ -364,13 +267,13 @@ class FileSensor:
         """The frame files, in the order they are read."""
         return [f.path for f in self.frames]
 
-    def _list(self, source: object) -> list[_Frame]:
+    def _list(self, source: object) -> list[Frame]:
         if isinstance(source, str | os.PathLike):
             folder = Path(source)
             if not folder.exists():
                 raise FileNotFoundError(errno.ENOENT, "frame folder or file not found", str(folder))
             if folder.is_file():
-                return [_Frame(folder)]
+                return [Frame(folder)]
             manifest = folder / MANIFEST
             if manifest.is_file():
                 return self._from_manifest(manifest)
@@ -385,7 +288,7 @@ class FileSensor:
                     f"no frames in {folder}: expected files ending in {', '.join(extensions)}"
                     + ("" if self.raw is not None else " (pass raw=RawFormat(...) for headerless raw dumps)")
                 )
-            return [_Frame(p) for p in paths]
+            return [Frame(p) for p in paths]
         if isinstance(source, Sequence) and not isinstance(source, bytes):
             paths = []
             for item in source:
@@ -394,55 +297,15 @@ class FileSensor:
                 paths.append(Path(item))
             if not paths:
                 raise ValueError("no frames: the list of files is empty")
-            return [_Frame(p) for p in paths]
+            return [Frame(p) for p in paths]
         raise TypeError(f"source must be a folder, a file or a list of files; got {type(source).__name__}")
 
-    def _from_manifest(self, manifest: Path) -> list[_Frame]:
-        data = _load_json(manifest)
-        entries = data.get("frames")
-        if not isinstance(entries, list) or not entries:
-            raise ValueError(f'{manifest} must list the frames: "frames": [{{"file": ..., "exposure": ...}}]')
-        frames = []
-        for i, entry in enumerate(entries):
-            if isinstance(entry, str):
-                entry = {"file": entry}
-            if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
-                raise ValueError(f'{manifest}: frame {i} must be a file name or an object with "file"; got {entry!r}')
-            path = _inside(manifest, entry["file"])
-            frame = _Frame(path)
-            where = f"{manifest} (frame {entry['file']})"
-            if entry.get("exposure") is not None:
-                frame.exposure = _positive(entry["exposure"], "exposure", where)
-            if entry.get("bits") is not None:
-                frame.bits = _bits_value(entry["bits"], where)
-            for key in ("batch", "index"):
-                if key in entry:
-                    # A place at or past the number of frames listed cannot be filled: refuse it before the stack's
-                    # (batch, exposure) grid is laid out, which is as large as the biggest place.
-                    listed = f"{len(entries)} frame{'s' if len(entries) > 1 else ''}"
-                    what = f"an int in [0, {len(entries) - 1}] (the manifest lists {listed})"
-                    place = _from_source(check_int, entry[key], f"{where}: {key!r}", 0, len(entries) - 1, what=what)
-                    setattr(frame, key, place)
-            frames.append(frame)
-        if data.get("bits") is not None:
-            bits = _bits_value(data["bits"], manifest)
-            for frame in frames:
-                frame.bits = frame.bits if frame.bits is not None else bits
-        if data.get("kind") is not None:
-            check_choice(data["kind"], f"{manifest}: kind", KINDS)
-        if data.get("metadata") is not None and not isinstance(data["metadata"], dict):
-            raise ValueError(f"{manifest}: metadata must be an object; got {type(data['metadata']).__name__}")
-        top, inner = data.get("cfa"), (data.get("metadata") or {}).get("cfa")
-        for key, pattern in (("cfa", top), ("metadata['cfa']", inner)):
-            if pattern is not None:
-                _from_source(check_cfa, pattern, f"{manifest}: {key}")
-        if top is not None and inner is not None and top != inner:
-            raise ValueError(f"{manifest}: cfa {top!r} disagrees with the metadata's cfa {inner!r}")
-        self.manifest = data
+    def _from_manifest(self, manifest: Path) -> list[Frame]:
+        frames, self.manifest = read_manifest(manifest)
         self.manifest_path = manifest
         return frames
 
-    def _read_frame(self, frame: _Frame) -> tuple[torch.Tensor, dict[str, Any]]:
+    def _read_frame(self, frame: Frame) -> tuple[torch.Tensor, dict[str, Any]]:
         path = frame.path
         if not path.exists():
             raise FileNotFoundError(errno.ENOENT, "frame file not found", str(path))
@@ -458,35 +321,28 @@ class FileSensor:
         patterns: dict[str, Path] = {}
         for i, frame in enumerate(self.frames):
             image, embedded = self._read_frame(frame)
-            sidecar_path = _sidecar(frame.path)
-            sidecar = _load_json(sidecar_path) if sidecar_path is not None else {}
+            sidecar_path = sidecar(frame.path)
+            side = load_json(sidecar_path) if sidecar_path is not None else {}
             if images and image.shape != images[0].shape:
                 raise ValueError(
                     f"frame {frame.path} has shape {tuple(image.shape)} (C, H, W) but {self.frames[0].path} has "
                     f"{tuple(images[0].shape)}: all frames must have the same size"
                 )
-            own = f"the metadata of {frame.path}"
-            # exposure
-            if self.exposures is not None:
-                tau: float | None = self.exposures[i]
-            elif frame.exposure is not None:
-                tau = frame.exposure
-            else:
-                tau = frame_exposure(sidecar, sidecar_path)
-                tau = frame_exposure(embedded, own) if tau is None else tau
+            # The manifest's values where it lists them (they must agree with the frame's own), else the frame's;
+            # the arguments override both.
+            listed = replace(
+                frame,
+                exposure=None if self.exposures is not None else frame.exposure,
+                bits=None if self.bits is not None else frame.bits,
+            )
+            recorded_tau, recorded_bits = frame_record(listed, side, sidecar_path, embedded, self.manifest_path)
+            tau = self.exposures[i] if self.exposures is not None else recorded_tau
             if tau is None:
                 raise ValueError(
                     f"no exposure for frame {frame.path}: give exposures=[...], list it in {MANIFEST}, write a "
                     f'sidecar {frame.path.name}.json with "exposure", or store "exposure" in the file\'s metadata'
                 )
-            # bit depth
-            if self.bits is not None:
-                bits: int | None = self.bits
-            elif frame.bits is not None:
-                bits = frame.bits
-            else:
-                bits = frame_bits(sidecar, sidecar_path)
-                bits = frame_bits(embedded, own) if bits is None else bits
+            bits = self.bits if self.bits is not None else recorded_bits
             if bits is None:
                 raise ValueError(
                     f'no bit depth for frame {frame.path}: give bits=..., put "bits" in {MANIFEST} or a sidecar '
@@ -498,12 +354,13 @@ class FileSensor:
                     f"frame {frame.path} has bits={bits} but {other} has bits={other_bits}: one stack has one bit depth"
                 )
             bits_seen.setdefault(bits, frame.path)
-            _frame_cfa(patterns, frame.path, sidecar.get("cfa"), embedded.get("cfa"), sidecar_path)
+            _frame_cfa(patterns, frame.path, side.get("cfa"), embedded.get("cfa"), sidecar_path)
             check_modulus(image, bits, f"frame {frame.path}")
             images.append(image)
             taus.append(tau)
-        bits = next(iter(bits_seen))
-        return self._assemble(images, taus, bits, next(iter(patterns), None))
+        if self.cfa is None:
+            check_manifest_cfa(self.manifest or {}, self.manifest_path, patterns)
+        return self._assemble(images, taus, next(iter(bits_seen)), next(iter(patterns), None))
 
     def _assemble(self, images: list[torch.Tensor], taus: list[float], bits: int, frames_cfa: str | None) -> FrameStack:
         data = self.manifest or {}
@@ -512,38 +369,20 @@ class FileSensor:
         metadata = dict(data.get("metadata") or {})
         cfa = self.cfa or data.get("cfa") or metadata.get("cfa") or frames_cfa
         metadata.pop("cfa", None)
-        # Place each frame at (batch, exposure index); frames without an index follow each other in order.
-        slots: dict[tuple[int, int], int] = {}
-        counters: dict[int, int] = {}
-        for n, frame in enumerate(self.frames):
-            m = frame.index if frame.index is not None else counters.get(frame.batch, 0)
-            counters[frame.batch] = max(counters.get(frame.batch, 0), m + 1)
-            if (frame.batch, m) in slots:
-                raise ValueError(f"{where}: two frames for batch {frame.batch}, exposure {m}")
-            slots[(frame.batch, m)] = n
-        b, m_count = max(counters) + 1, max(counters.values())
-        missing = next(((i, j) for i in range(b) for j in range(m_count) if (i, j) not in slots), None)
-        if missing is not None:
-            raise ValueError(f"{where}: no frame for (batch, exposure) {missing} of a {b} x {m_count} stack")
+        stored = stored_exposures(data.get("exposures"), where) if self.exposures is None else None
+        slots, b, m_count = place_frames(self.frames, taus, stored, where)
         moduli = torch.stack([torch.stack([images[slots[(i, j)]] for j in range(m_count)]) for i in range(b)])
         tau = torch.tensor([[taus[slots[(i, j)]] for j in range(m_count)] for i in range(b)], dtype=torch.float64)
-        stored = data.get("exposures")
-        if stored is not None and self.exposures is None:
-            try:
-                stored_tau = torch.tensor(stored, dtype=torch.float64)
-            except (TypeError, ValueError):
-                raise ValueError(f"{where}: exposures must be a list of numbers; got {stored!r}") from None
-            if stored_tau.shape not in ((m_count,), (b, m_count)) or not torch.equal(
-                stored_tau.expand(b, m_count), tau
-            ):
-                raise ValueError(f"{where}: exposures {stored} disagree with the frames' exposures {tau.tolist()}")
-            tau = stored_tau
+        if stored is not None:
+            if stored.shape not in ((m_count,), (b, m_count)) or not torch.equal(stored.expand(b, m_count), tau):
+                raise ValueError(
+                    f"{where}: exposures {data['exposures']} disagree with the frames' exposures {tau.tolist()}"
+                )
+            tau = stored
         elif b == 1:
             tau = tau[0]
-        dtype = self.dtype
-        if dtype is None:
-            name = data.get("dtype")
-            dtype = _DTYPES.get(name, torch.float32) if isinstance(name, str) else torch.float32
+        check_manifest_shape(data, where, moduli.shape)
+        dtype = self.dtype or DTYPES.get(data.get("dtype") or "float32", torch.float32)
         moduli = moduli.to(device=self.device, dtype=dtype)
         if cfa is not None and (moduli.shape[-3] != 1 or moduli.shape[-2] % 2 or moduli.shape[-1] % 2):
             shape, folder = tuple(moduli.shape[-3:]), where or self.frames[0].path.parent
@@ -564,7 +403,7 @@ def _frame_cfa(patterns: dict[str, Path], path: Path, sidecar: Any, embedded: An
     value, source = (sidecar, sidecar_path) if sidecar is not None else (embedded, f"the metadata of {path}")
     if value is None:
         return
-    pattern = _from_source(check_cfa, value, f"cfa from {source}")
+    pattern = from_source(check_cfa, value, f"cfa from {source}")
     if patterns and pattern not in patterns:
         other_cfa, other = next(iter(patterns.items()))
         raise ValueError(f"frame {path} has cfa={pattern!r} but {other} has cfa={other_cfa!r}: one stack, one pattern")
