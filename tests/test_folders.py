@@ -14,7 +14,7 @@ from torch_modulo.io import write_image
 
 def _write(path: Path, image: torch.Tensor) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_image(path, image)
+    write_image(path, image, normalized=False if path.suffix == ".png" else None)
     return path
 
 

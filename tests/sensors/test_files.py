@@ -369,7 +369,7 @@ class TestErrors:
         # A huge index or batch laid out a grid as large as it (index 5e6 took 794 MB before failing): refused on
         # construction, naming the manifest, the frame and the value, since 2 frames fill at most places 0 and 1.
         write_image(tmp_path / "a.png", torch.zeros(1, 2, 2))
-        write_image(tmp_path / "b.png", torch.ones(1, 2, 2))
+        write_image(tmp_path / "b.png", torch.ones(1, 2, 2), normalized=False)
         frames = [{"file": "a.png", "exposure": 1.0}, {"file": "b.png", "exposure": 2.0, key: value}]
         (tmp_path / MANIFEST).write_text(json.dumps({"bits": 8, "frames": frames}))
         message = rf"frames\.json \(frame b\.png\): '{key}' must be an int in \[0, 1\] .*2 frames\); got {value}$"
@@ -386,7 +386,7 @@ class TestErrors:
 
     def test_places_within_the_listed_frames_still_read(self, tmp_path: Path) -> None:
         write_image(tmp_path / "a.png", torch.zeros(1, 2, 2))
-        write_image(tmp_path / "b.png", torch.ones(1, 2, 2))
+        write_image(tmp_path / "b.png", torch.ones(1, 2, 2), normalized=False)
         frames = [{"file": "a.png", "exposure": 1.0, "batch": 1}, {"file": "b.png", "exposure": 2.0, "batch": 0}]
         (tmp_path / MANIFEST).write_text(json.dumps({"bits": 8, "frames": frames}))
         stack = FileSensor(tmp_path).read()
