@@ -6,9 +6,9 @@ For the multi-exposure capture and the multi-shot unwrap the data is the (B, M, 
 exposures), so their reference is the clone of that stack; every other operation is compared with the clone of its
 (B, C, H, W) input.
 
-The rows marked "compiled" time the layers under ``torch.compile(layer, fullgraph=True)`` (Inductor) with
-``torch_modulo.validation(False)``, so without the value checks; compilation happens in the warm-up call and is
-not timed. ``--no-compile`` skips them (compiling takes a while on a small CPU).
+The rows marked "compiled" time the layers under ``torch.compile(layer, fullgraph=True)`` (Inductor), which skips
+the value checks by itself; compilation happens in the warm-up call and is not timed. ``--no-compile`` skips them
+(compiling takes a while on a small CPU).
 
 Prints a table and a JSON summary (medians over ``--repeats`` runs, interleaved with the clone timings so that
 both see the same machine load).
@@ -73,10 +73,9 @@ def compiled_rows(
         ("unwrap_multi robust", tm.MultiExposureUnwrap(bits), stack, moduli),
     ]
     rows = []
-    with tm.validation(False):
-        for name, layer, data, reference in cases:
-            fn = torch.compile(layer.to(device), fullgraph=True, dynamic=False)
-            rows.append(bench(f"{name} compiled", lambda fn=fn, data=data: fn(data), reference, repeats))
+    for name, layer, data, reference in cases:
+        fn = torch.compile(layer.to(device), fullgraph=True, dynamic=False)
+        rows.append(bench(f"{name} compiled", lambda fn=fn, data=data: fn(data), reference, repeats))
     return rows
 
 

@@ -1,5 +1,6 @@
-"""Layers that compile: ``torch.compile(layer, fullgraph=True)`` with validation off, and the validation switch
-(torch_modulo/_checks.py) that turns the value checks off.
+"""Layers that compile: ``torch.compile(layer, fullgraph=True)`` as they are (the value checks are off while
+torch.compile traces), and the validation switch (torch_modulo/_checks.py) that turns the value checks off in eager
+code.
 
 Most tests trace with ``backend="eager"`` (Dynamo only: it is what ``fullgraph=True`` is about, and it compiles in
 well under a second) or ``"aot_eager"`` (adds AOT autograd and functionalisation); one slow test runs Inductor.
@@ -86,8 +87,7 @@ class TestFullGraph:
     def test_fullgraph_equals_eager(self, name: str) -> None:
         make, inputs, exact = CASES[name]
         layer, args = make(), inputs()
-        with tm.validation(False):
-            out = torch.compile(layer, fullgraph=True, backend="eager")(*args)
+        out = torch.compile(layer, fullgraph=True, backend="eager")(*args)
         _assert_same(out, layer(*args), exact)
 
     @pytest.mark.parametrize(
@@ -96,51 +96,43 @@ class TestFullGraph:
     def test_aot_eager(self, name: str) -> None:
         make, inputs, exact = CASES[name]
         layer, args = make(), inputs()
-        with tm.validation(False):
-            out = torch.compile(layer, fullgraph=True, backend="aot_eager")(*args)
+        out = torch.compile(layer, fullgraph=True, backend="aot_eager")(*args)
         _assert_same(out, layer(*args), exact)
 
     def test_no_graph_break(self) -> None:
-        with tm.validation(False):
-            for name in ("ModuloWrap", "MultiExposureCapture", "MultiExposureUnwrap", "LogToneMap"):
-                make, inputs, _ = CASES[name]
-                explained = torch._dynamo.explain(make())(*inputs())
-                assert explained.graph_break_count == 0, (name, explained.break_reasons)
+        for name in ("ModuloWrap", "MultiExposureCapture", "MultiExposureUnwrap", "LogToneMap"):
+            make, inputs, _ = CASES[name]
+            explained = torch._dynamo.explain(make())(*inputs())
+            assert explained.graph_break_count == 0, (name, explained.break_reasons)
 
     def test_layers_with_other_options_compile_in_the_same_process(self) -> None:
         # A second compile of the same forward with new float options makes them symbolic: still one graph.
         x = _x()
-        with tm.validation(False):
-            for layer in (tm.LogToneMap(), tm.LogToneMap(q=2.5, k=3.5, exposure=1.25), tm.LogToneMap(exposure=120.0)):
-                torch.testing.assert_close(
-                    torch.compile(layer, fullgraph=True, backend="eager")(x * 100), layer(x * 100)
-                )
-            for layer in (tm.GammaToneMap(), tm.GammaToneMap(gamma=1.7, exposure=1.5)):
-                torch.testing.assert_close(torch.compile(layer, fullgraph=True, backend="eager")(x), layer(x))
-            for layer in (tm.ReinhardToneMap(), tm.ReinhardToneMap(key=0.09, white=float("inf"), delta=1e-4)):
-                torch.testing.assert_close(torch.compile(layer, fullgraph=True, backend="eager")(x), layer(x))
+        for layer in (tm.LogToneMap(), tm.LogToneMap(q=2.5, k=3.5, exposure=1.25), tm.LogToneMap(exposure=120.0)):
+            torch.testing.assert_close(torch.compile(layer, fullgraph=True, backend="eager")(x * 100), layer(x * 100))
+        for layer in (tm.GammaToneMap(), tm.GammaToneMap(gamma=1.7, exposure=1.5)):
+            torch.testing.assert_close(torch.compile(layer, fullgraph=True, backend="eager")(x), layer(x))
+        for layer in (tm.ReinhardToneMap(), tm.ReinhardToneMap(key=0.09, white=float("inf"), delta=1e-4)):
+            torch.testing.assert_close(torch.compile(layer, fullgraph=True, backend="eager")(x), layer(x))
 
     def test_unwrap_unsorted_and_per_batch_exposures(self) -> None:
         x = _x()
         taus = torch.tensor([[256.0, 1.0, 16.0], [4.0, 1024.0, 64.0]], dtype=torch.float64)
         moduli = tm.capture_stack(x, taus, 8)
         layer = tm.MultiExposureUnwrap(bits=8, return_counts=True)
-        with tm.validation(False):
-            out = torch.compile(layer, fullgraph=True, backend="eager")(moduli, taus)
+        out = torch.compile(layer, fullgraph=True, backend="eager")(moduli, taus)
         assert torch.equal(out, layer(moduli, taus))
 
     def test_unbatched_chain(self) -> None:
         chain = nn.Sequential(tm.MultiExposureCapture(TAUS, bits=8), tm.MultiExposureUnwrap(bits=8))
         x = _x()[0]
-        with tm.validation(False):
-            out = torch.compile(chain, fullgraph=True, backend="eager")(x)
+        out = torch.compile(chain, fullgraph=True, backend="eager")(x)
         assert out.shape == x.shape and torch.equal(out, chain(x))
 
     def test_straight_through_gradient(self) -> None:
         layer = tm.MultiExposureCapture(TAUS, bits=8, straight_through=True)
         x = _radiance((1, 3, 4, 4), dtype=torch.float64).requires_grad_()
-        with tm.validation(False):
-            torch.compile(layer, fullgraph=True, backend="aot_eager")(x).moduli.sum().backward()
+        torch.compile(layer, fullgraph=True, backend="aot_eager")(x).moduli.sum().backward()
         assert torch.allclose(x.grad, torch.full_like(x, sum(TAUS)))
 
     @pytest.mark.slow
@@ -148,8 +140,7 @@ class TestFullGraph:
         for name in ("ModuloWrap", "ModuloCapture", "MultiExposureCapture", "chain", "GammaToneMap", "LogToneMap"):
             make, inputs, exact = CASES[name]
             layer, args = make(), inputs()
-            with tm.validation(False):
-                out = torch.compile(layer, fullgraph=True)(*args)
+            out = torch.compile(layer, fullgraph=True)(*args)
             _assert_same(out, layer(*args), exact)
 
 
@@ -179,14 +170,18 @@ class TestValidationSwitch:
             with pytest.raises(ValueError, match="gamma must be a positive finite number"):
                 tm.tonemap_gamma(torch.ones(2, 2), gamma=0.0)
 
-    def test_compiled_layer_follows_the_switch(self) -> None:
-        # Dynamo guards on the switch: the layer compiled with validation off recompiles with it on, and checks.
-        layer = torch.compile(tm.ModuloCapture(exposure=2.0, bits=8), backend="eager")
+    def test_compiled_code_skips_the_value_checks(self) -> None:
+        # The value checks read tensor values: compiled code skips them by itself, whatever the switch; eager code
+        # still checks. Types, shapes and arguments are checked in both.
+        layer = tm.ModuloCapture(exposure=2.0, bits=8)
+        compiled = torch.compile(layer, fullgraph=True, backend="eager")
         negative = torch.full((1, 1, 2, 2), -1.0)
-        with tm.validation(False):
-            layer(negative)
+        with tm.validation(True):  # unchecked: floor(2 x -1) mod 256, as eager code with the checks off gives
+            assert torch.equal(compiled(negative), torch.full((1, 1, 2, 2), 254.0))
         with pytest.raises(ValueError, match="radiance must be >= 0; got min -1.0"):
             layer(negative)
+        with pytest.raises(TypeError, match="radiance must be a floating-point tensor"):  # (a graph break raises it)
+            torch.compile(layer, backend="eager")(torch.ones(1, 1, 2, 2, dtype=torch.int64))
 
     def test_set_validation_returns_previous(self) -> None:
         try:

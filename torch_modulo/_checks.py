@@ -29,7 +29,6 @@ from __future__ import annotations
 import contextvars
 import math
 import numbers
-import threading
 from collections.abc import Collection, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -58,30 +57,25 @@ __all__ = [
     "validation_enabled",
 ]
 
-# The setting of the current thread and context. Dynamo cannot read a ContextVar, so compiled code reads (and guards
-# on) a thread-local copy of it instead, kept equal to the ContextVar of the context that last switched it in this
-# thread: a compiled layer recompiles when the switch changes instead of silently keeping the path it was traced with,
-# and one thread's setting never reaches another thread's compiled code.
+# The setting of the current thread and context (eager code only: while torch.compile traces, the value checks are
+# off, see validation_enabled).
 _VALIDATION: contextvars.ContextVar[bool] = contextvars.ContextVar("torch_modulo_validation", default=True)
 
 
-class _TracedSetting(threading.local):
-    def __init__(self) -> None:
-        self.enabled = True
-
-
-_TRACED = _TracedSetting()
-
-
 def validation_enabled() -> bool:
-    """Whether the value checks are on (the default) in the current thread and context; see :func:`validation`.
+    """Whether the value checks are on: the setting of the current thread and context (on by default; see
+    :func:`validation`), and always off while ``torch.compile`` traces.
+
+    The value checks read tensor values, which would break a compiled graph, so compiled code skips them by itself:
+    ``torch.compile(layer, fullgraph=True)`` works without :func:`validation`. Types, shapes and arguments are still
+    checked there; eager calls check values as the setting says.
 
     Example:
         >>> validation_enabled()
         True
     """
     if torch.compiler.is_compiling():
-        return _TRACED.enabled
+        return False
     return _VALIDATION.get()
 
 
@@ -111,7 +105,6 @@ def set_validation(enabled: bool) -> bool:
     enabled = check_flag(enabled, "enabled")
     previous = _VALIDATION.get()
     _VALIDATION.set(enabled)
-    _TRACED.enabled = enabled
     return previous
 
 
@@ -120,14 +113,12 @@ def validation(enabled: bool) -> Iterator[None]:
     """Context manager (and decorator) that switches the value checks on or off, restoring them on exit.
 
     The checks that read tensor values (non-negative, finite radiance; moduli that are integers in
-    ``[0, 2**bits)``; positive exposures) each cost a pass over the data and a host sync, and they break
-    ``torch.compile`` graphs. Inside ``validation(False)`` they are skipped, so the layers trace in one graph and
-    ``torch.compile(layer, fullgraph=True)`` works; invalid input then gives undefined results instead of an error.
-    Like ``torch.no_grad``, the setting belongs to the current thread and context (see :func:`set_validation`):
-    a ``validation(False)`` in one thread or asyncio task leaves the checks of the others on. A compiled layer
-    recompiles when the setting of the thread that calls it changes. (Compiled code reads the setting of the
-    thread, as Dynamo cannot read a ``ContextVar``: the setting last made in that thread, by whichever of its
-    contexts made it.)
+    ``[0, 2**bits)``; positive exposures) each cost a pass over the data and a host sync. Inside
+    ``validation(False)`` they are skipped; invalid input then gives undefined results instead of an error. Like
+    ``torch.no_grad``, the setting belongs to the current thread and context (see :func:`set_validation`): a
+    ``validation(False)`` in one thread or asyncio task leaves the checks of the others on. Compiled code needs no
+    switch: while ``torch.compile`` traces, the value checks are off (:func:`validation_enabled`), so
+    ``torch.compile(layer, fullgraph=True)`` works as it is; check values eagerly where the inputs are not trusted.
 
     Args:
         enabled: ``False`` to skip the value checks, ``True`` to force them on.
@@ -147,7 +138,6 @@ def validation(enabled: bool) -> Iterator[None]:
     """
     enabled = check_flag(enabled, "enabled")
     token = _VALIDATION.set(enabled)
-    _TRACED.enabled = enabled
     try:
         yield
     finally:
@@ -155,7 +145,6 @@ def validation(enabled: bool) -> Iterator[None]:
             _VALIDATION.reset(token)
         except (ValueError, RuntimeError):  # exited in another context than it entered: restore the value itself
             _VALIDATION.set(token.old_value if token.old_value is not contextvars.Token.MISSING else True)
-        _TRACED.enabled = _VALIDATION.get()
 
 
 def check_has_values(x: torch.Tensor, name: str) -> torch.Tensor:
