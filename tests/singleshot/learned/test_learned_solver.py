@@ -9,6 +9,7 @@ import torch
 from learned_helpers import scene  # tests/singleshot/learned/
 
 from torch_modulo.singleshot import unwrap_single
+from torch_modulo.singleshot.learned import MIN_LEVEL_SIDE, learned_k, solver
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/singleshot/conftest.py
 
@@ -42,3 +43,32 @@ class TestLearnedUnwrap:
         before = modulus.clone()
         unwrap_single(modulus, method="learned")
         assert torch.equal(modulus, before)
+
+
+class TestThinImages:
+    """Regression: a one-row ramp came back with whole stretches a period low (the level moves, whose head reads 2-D
+    context, moved them); planes thinner than MIN_LEVEL_SIDE get no level moves."""
+
+    @pytest.mark.parametrize(("width", "step", "offset"), [(64, 10, 0), (300, 10, 0), (1000, 10, 0), (200, 10, 1000)])
+    @pytest.mark.parametrize("shape", ["1xN", "Nx1", "2xN", "4xN"])
+    def test_thin_ramps_are_exact(self, shape: str, width: int, step: int, offset: int) -> None:
+        rows = {"1xN": 1, "Nx1": 1, "2xN": 2, "4xN": 4}[shape]
+        ramp = (torch.arange(float(width)) * step + offset).expand(rows, width).clone()
+        if shape == "Nx1":
+            ramp = ramp.T.contiguous()
+        out = unwrap_single(ramp % 256, 8)
+        assert torch.equal(out - out.min(), ramp - ramp.min())
+
+    def test_the_issues_ramp(self) -> None:
+        ramp = (torch.arange(64.0) * 10).reshape(1, -1)
+        assert torch.equal(unwrap_single(ramp % 256, 8), ramp)
+
+    def test_the_side_decides(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        calls = []
+        real = solver.region_moves
+        monkeypatch.setattr(solver, "region_moves", lambda *a, **kw: calls.append(a[0].shape) or real(*a, **kw))
+        moduli = (scene(16)[None] % 256).astype(np.int64)
+        for side in (MIN_LEVEL_SIDE - 1, MIN_LEVEL_SIDE):
+            learned_k(moduli[:, :side], 8, levels=True)
+            learned_k(moduli[:, :, :side], 8, levels=True)
+        assert calls == [(MIN_LEVEL_SIDE, 16), (16, MIN_LEVEL_SIDE)]

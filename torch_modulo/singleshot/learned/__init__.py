@@ -68,6 +68,7 @@ from torch_modulo.singleshot.learned.network import (
 from torch_modulo.singleshot.learned.solver import (
     BAND,
     LEARNED_OPTIONS,
+    MIN_LEVEL_SIDE,
     MOSAIC_CUTS,
     check_levels,
     check_tile,
@@ -85,6 +86,7 @@ __all__ = [
     "LEVELS",
     "LEVEL_WEIGHTS",
     "MAX_COST",
+    "MIN_LEVEL_SIDE",
     "MOSAIC_CUTS",
     "SLOTS",
     "STRIP",

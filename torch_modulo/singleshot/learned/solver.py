@@ -30,6 +30,7 @@ from torch_modulo.singleshot.spec import MoveStats, SolverSpec
 __all__ = [
     "BAND",
     "LEARNED_OPTIONS",
+    "MIN_LEVEL_SIDE",
     "MOSAIC_CUTS",
     "check_levels",
     "check_tile",
@@ -43,6 +44,11 @@ __all__ = [
 #: The default ``max_cuts`` of a mosaic's guide (``unwrap_single(..., cfa=...)``, :func:`mosaic_spec`): its
 #: interpolated values mislead the tree more often than a full colour image does, and the cuts outvote them.
 MOSAIC_CUTS = 4
+
+#: Planes with a side shorter than this get no level moves: the level head reads 2-D context (it was trained on
+#: crops of natural images), and on thinner planes its costs mislead (a one-row ramp came back with whole stretches
+#: a period low); the tree, and the cuts when asked for, decode them.
+MIN_LEVEL_SIDE = 8
 
 #: With ``max_cuts`` or ``levels``, the costs of the jumps within ``BAND`` of each pair's most likely one are kept for
 #: the cuts and the level moves (farther jumps cost :data:`~torch_modulo.singleshot.learned.MAX_COST`):
@@ -73,7 +79,8 @@ def learned_k(
     ``max_cuts``, min-cut moves (:func:`~torch_modulo.singleshot.learned.refine_band`) follow the tree. With
     ``levels`` (a :class:`~torch_modulo.singleshot.learned.LevelNet`, ``True`` for the shipped one, or a level
     weights file), regions are then moved by its level costs (:func:`~torch_modulo.singleshot.learned.region_moves`;
-    float16 costs per 2 x 2 block, level and channel are kept while the image is decoded). With either, the costs of
+    float16 costs per 2 x 2 block, level and channel are kept while the image is decoded; planes with a side shorter
+    than :data:`MIN_LEVEL_SIDE` get none). With either, the costs of
     the jumps within :data:`BAND` of each pair's most likely one are kept (``2 (2 BAND + 1)`` floats per pixel and
     channel). The confidence is that of the tree. The channels are decoded side by side on torch's threads.
 
@@ -92,6 +99,8 @@ def learned_k(
     confidence = np.empty(x.shape)
     device = next(net.parameters()).device
     level_net = _level_network(levels, device)
+    if min(x.shape[-2:]) < MIN_LEVEL_SIDE:  # too thin for the level head's 2-D view
+        level_net = None
     band = BAND if max_cuts or level_net is not None else 0
     x_net = x.to(device=device, dtype=torch.float32)
     if level_net is not None and not augment and _same_network(level_net.trunk, net):  # one run of the encoder
