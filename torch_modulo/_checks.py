@@ -51,6 +51,8 @@ __all__ = [
     "check_nonnegative",
     "check_tensor",
     "exposure_tensor",
+    "is_channels_last",
+    "like_memory_format",
     "nonnegative_max",
     "set_validation",
     "validation",
@@ -145,6 +147,29 @@ def validation(enabled: bool) -> Iterator[None]:
             _VALIDATION.reset(token)
         except (ValueError, RuntimeError):  # exited in another context than it entered: restore the value itself
             _VALIDATION.set(token.old_value if token.old_value is not contextvars.Token.MISSING else True)
+
+
+def is_channels_last(image: torch.Tensor) -> bool:
+    """Whether a (B, C, H, W) tensor's images are stored channels last (``torch.channels_last``): the channels of a
+    pixel adjacent in memory, and not also in the default layout (one channel, or one pixel, is both).
+
+    Example:
+        >>> x = torch.zeros(2, 3, 4, 4)
+        >>> is_channels_last(x), is_channels_last(x.contiguous(memory_format=torch.channels_last))
+        (False, True)
+    """
+    if image.dim() != 4 or image.shape[0] == 0:
+        return False
+    first = image[0]
+    return not first.is_contiguous() and first.permute(1, 2, 0).is_contiguous()
+
+
+def like_memory_format(out: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """``out`` in the memory format of ``like`` (the input it was computed from): channels last when ``like``'s images
+    are (:func:`is_channels_last`) and ``out`` is 4-D, else ``out`` as it is."""
+    if out.dim() == 4 and is_channels_last(like):
+        return out.contiguous(memory_format=torch.channels_last)
+    return out
 
 
 def check_has_values(x: torch.Tensor, name: str) -> torch.Tensor:

@@ -20,6 +20,7 @@ from torch_modulo._checks import (
     check_has_values,
     check_modulus,
     check_real,
+    like_memory_format,
     validation_enabled,
 )
 from torch_modulo.multishot.counting import METHODS, count_rollovers
@@ -395,10 +396,7 @@ class MultiExposureUnwrap(nn.Module):
         )
         # Keep the frames' memory format: channels-last frames (MultiExposureCapture of channels-last radiance) give
         # a channels-last image.
-        frame = frames[0, 0] if out.dim() == 4 and frames.dim() == 5 and out.numel() else None
-        if frame is not None and not frame.is_contiguous() and frame.permute(1, 2, 0).is_contiguous():
-            return out.contiguous(memory_format=torch.channels_last)
-        return out
+        return like_memory_format(out, frames[:, 0]) if frames.dim() == 5 and out.numel() else out
 
     def extra_repr(self) -> str:
         return f"bits={self.bits}, method={self.method!r}, return_counts={self.return_counts}, noise={self.noise}"

@@ -26,6 +26,7 @@ from torch_modulo._checks import (
     check_modulus,
     check_nonempty_image,
     check_tensor,
+    like_memory_format,
 )
 from torch_modulo.cfa import check_cfa, interpolate_wrapped, mosaic
 from torch_modulo.singleshot.learned.solver import mosaic_spec
@@ -90,13 +91,6 @@ def _warn_inexact(restored: torch.Tensor, peak: float) -> None:
             )
 
 
-def _like(out: torch.Tensor, modulus: torch.Tensor) -> torch.Tensor:
-    """``out`` (of ``modulus``'s shape) in ``modulus``'s memory format: channels_last stays channels_last."""
-    if modulus.dim() == 4 and not modulus.is_contiguous() and modulus.is_contiguous(memory_format=torch.channels_last):
-        return out.contiguous(memory_format=torch.channels_last)
-    return out
-
-
 def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tuple[torch.Tensor, SingleShotInfo]:
     """Check the tensor, solve its planes (in workers when that pays) and assemble the output and the info."""
     check_tensor(modulus, "modulus")
@@ -123,7 +117,7 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
         plane.copy_(torch.from_numpy(r.astype(np.float64)))
     peak = max((float(r.max()) for r, _ in results if r.size), default=0.0)
     _warn_inexact(restored, peak)
-    out = _like(restored.reshape(modulus.shape).to(device=modulus.device), modulus)
+    out = like_memory_format(restored.reshape(modulus.shape).to(device=modulus.device), modulus)
     infos = [i for _, i in results]
 
     def grid(key: str, dtype: torch.dtype) -> torch.Tensor:
@@ -139,7 +133,9 @@ def _solve(modulus: torch.Tensor, spec: SolverSpec, workers: int | None) -> tupl
     )
     if infos and all("confidence" in i for i in infos):
         maps = torch.from_numpy(np.stack([i["confidence"] for i in infos]))
-        info.confidence = _like(maps.to(dtype=modulus.dtype).reshape(modulus.shape).to(device=modulus.device), modulus)
+        info.confidence = like_memory_format(
+            maps.to(dtype=modulus.dtype).reshape(modulus.shape).to(device=modulus.device), modulus
+        )
     return out, info
 
 

@@ -20,6 +20,7 @@ from torch_modulo._checks import (
     check_image_shape,
     check_nonnegative,
     check_real,
+    like_memory_format,
     validation_enabled,
 )
 from torch_modulo._chunks import CPU_CHUNK, chunk_on_cpu, column_chunks
@@ -183,22 +184,11 @@ def img(v: torch.Tensor) -> torch.Tensor:
     return v.reshape(-1, 1, 1, 1)
 
 
-def channels_last(image: torch.Tensor) -> bool:
-    """Whether a (B, C, H, W) tensor's images are stored channels last (``torch.channels_last``): the channels of a
-    pixel adjacent in memory, and not also in the default layout (one channel, or one pixel, is both)."""
-    if image.dim() != 4 or image.shape[0] == 0:
-        return False
-    first = image[0]
-    return not first.is_contiguous() and first.permute(1, 2, 0).is_contiguous()
-
-
 def restore(out: torch.Tensor, shape: torch.Size, like: torch.Tensor | None = None) -> torch.Tensor:
     """Give a (B, C, H, W) result the caller's original shape, and the memory format of ``like`` (the input) when
     its images are stored channels last."""
     out = out.reshape(shape)
-    if like is not None and channels_last(like):
-        return out.contiguous(memory_format=torch.channels_last)
-    return out
+    return out if like is None else like_memory_format(out, like)
 
 
 #: Range of ``exposure`` (in stops) for the gamma and logarithmic mappings: ``2**exposure`` is then a normal
