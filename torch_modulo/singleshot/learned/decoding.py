@@ -25,6 +25,7 @@ __all__ = [
     "pair_costs",
     "refine_band",
     "refine_cut",
+    "table_indices",
 ]
 
 #: The two pair directions as ``(first end, second end)`` slices of a plane: to the right, and down.
@@ -144,6 +145,28 @@ def decode_jumps(modulus: np.ndarray, jump: np.ndarray, cost: np.ndarray, bits: 
     return k.reshape(h, w), confidence.reshape(h, w)
 
 
+def table_indices(
+    m: np.ndarray, k: np.ndarray, first: np.ndarray, period: int, shift_a: int = 0, shift_b: int = 0
+) -> list[np.ndarray]:
+    """Per direction, the jump ``n`` every pair takes under ``k`` (moved by ``shift_a`` at each pair's first end and
+    ``shift_b`` at its second), as an index ``n - first[d]`` into its table of jump costs (see :func:`pair_costs`).
+
+    Returns:
+        ``[right, down]``: (H, W - 1) and (H - 1, W) int64 indices (outside ``0 .. K - 1`` for jumps off the table).
+
+    Example:
+        >>> m, k = np.array([[10, 20]]), np.array([[0, 1]])  # the pair steps by 10 + 256 counts: jump 1
+        >>> [n.tolist() for n in table_indices(m, k, np.full((2, 1, 2), -1), 256)]
+        [[[2]], []]
+    """
+    out = []
+    for direction, (a, b) in enumerate(DIRECTIONS):
+        restored_a, restored_b = m[a] + period * (k[a] + shift_a), m[b] + period * (k[b] + shift_b)
+        wd = np.mod(m[b] - m[a] + period // 2, period) - period // 2
+        out.append((restored_b - restored_a - wd) // period - first[direction][a])
+    return out
+
+
 def pair_costs(
     m: np.ndarray,
     k: np.ndarray,
@@ -178,10 +201,8 @@ def pair_costs(
     """
     size = table.shape[1]
     out = []
-    for direction, (a, b) in enumerate(DIRECTIONS):
-        restored_a, restored_b = m[a] + period * (k[a] + shift_a), m[b] + period * (k[b] + shift_b)
-        wd = np.mod(m[b] - m[a] + period // 2, period) - period // 2
-        n = (restored_b - restored_a - wd) // period - first[direction][a]
+    for direction, n in enumerate(table_indices(m, k, first, period, shift_a, shift_b)):
+        a = DIRECTIONS[direction][0]
         inside = (n >= 0) & (n < size)
         c = np.take_along_axis(table[direction][(slice(None), *a)], np.clip(n, 0, size - 1)[None], 0)[0]
         out.append(np.where(inside, c, MAX_COST))

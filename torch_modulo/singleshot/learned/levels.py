@@ -19,7 +19,7 @@ import numpy as np
 
 from torch_modulo._checks import check_int
 from torch_modulo.singleshot.grid import grid_components
-from torch_modulo.singleshot.learned.decoding import DIRECTIONS, MAX_COST
+from torch_modulo.singleshot.learned.decoding import DIRECTIONS, MAX_COST, table_indices
 
 __all__ = ["RegionMoves", "region_moves"]
 
@@ -115,15 +115,13 @@ class RegionMoves:
     def _border_pairs(self, m: np.ndarray, table: np.ndarray, first: np.ndarray, period: int) -> None:
         """The pairs between regions (both directions): their regions ``ra``, ``rb``, their jump under ``k`` (``n0``,
         an index into their tables ``lp``), and every region's border pairs, region by region."""
-        k, labels = self.k, self.labels
+        labels = self.labels
         ends_a, ends_b, jumps, tables = [], [], [], []
-        for d, (a, b) in enumerate(DIRECTIONS):
+        for d, ((a, b), n) in enumerate(zip(DIRECTIONS, table_indices(m, self.k, first, period), strict=True)):
             cross = labels[a] != labels[b]
-            wd = np.mod(m[b] - m[a] + period // 2, period) - period // 2
-            n = (m[b] + period * k[b] - m[a] - period * k[a] - wd)[cross] // period - first[d][a][cross]
             ends_a.append(labels[a][cross])
             ends_b.append(labels[b][cross])
-            jumps.append(n)
+            jumps.append(n[cross])
             tables.append(np.clip(table[d][(slice(None), *a)][:, cross], 0.0, MAX_COST).astype(np.float32))
         self.ra, self.rb, self.n0, self.lp = (np.concatenate(x, axis=-1) for x in (ends_a, ends_b, jumps, tables))
         owner = np.concatenate([self.ra, self.rb])
