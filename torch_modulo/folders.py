@@ -27,6 +27,7 @@ from torch_modulo._task import Task
 from torch_modulo.batch.tasks import discover
 from torch_modulo.radiance import RADIANCE_EXTENSIONS
 from torch_modulo.sensors.files import MANIFEST, frame_bits, frame_exposure, stack_files
+from torch_modulo.sensors.manifest import TRUTH_FILE
 
 __all__ = ["CONFIDENCE_UNIT", "MODULUS_EXTENSIONS", "count_values", "folder_tasks", "not_radiance", "radiance_tasks"]
 
@@ -34,17 +35,16 @@ __all__ = ["CONFIDENCE_UNIT", "MODULUS_EXTENSIONS", "count_values", "folder_task
 MODULUS_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".pfm")
 #: The unit ``unwrap --confidence`` records in its confidence maps.
 CONFIDENCE_UNIT = "confidence in [0, 1]"
-#: The ground truth a frame stack holds beside its frames (radiance: tone-mapped like any other).
-_TRUTH_FILE = "radiance.exr"
 
 
-def not_radiance(path: str | Path) -> str | None:
+def not_radiance(path: str | Path, listed: set[str] | None = None) -> str | None:
     """Why the image file ``path`` is not radiance by its own record, or None when nothing says so.
 
     A file is a frame when the ``frames.json`` beside it lists it, or when its metadata records a bit depth and an
     exposure but no unit (as :func:`~torch_modulo.sensors.write_frames` writes frames; radiance from ``unwrap``
     records ``"unit"``); it is a confidence map when its metadata's unit is :data:`CONFIDENCE_UNIT`. A file whose
-    header cannot be read is left for the job to refuse with its own message.
+    header cannot be read is left for the job to refuse with its own message. ``listed``: the names
+    :func:`~torch_modulo.sensors.stack_files` gives for ``path``'s folder, when the caller has them already.
 
     Example:
         >>> import os, tempfile, torch
@@ -57,7 +57,8 @@ def not_radiance(path: str | Path) -> str | None:
     from torch_modulo.io import read_metadata
 
     path = Path(path)
-    if path.name != _TRUTH_FILE and path.name in stack_files(path.parent) - {MANIFEST}:
+    listed = stack_files(path.parent) if listed is None else listed
+    if path.name != TRUTH_FILE and path.name in listed - {MANIFEST}:
         return f"a frame of a modulo camera, listed in {path.parent / MANIFEST}: unwrap the stack, then tone-map that"
     try:
         meta = read_metadata(path)
@@ -75,8 +76,12 @@ def radiance_tasks(tasks: Sequence[Task], out: Path) -> tuple[list[Task], list[d
     """The tasks whose inputs are radiance, and report entries (``input``, ``outputs``, ``reason``) for the others:
     frames and confidence maps, which ``tonemap`` skips (:func:`not_radiance`)."""
     kept, skipped = [], []
+    listings: dict[Path, set[str]] = {}  # each folder's frames.json is read once, not once per file
     for task in tasks:
-        reason = not_radiance(task.source)
+        folder = Path(task.source).parent
+        if folder not in listings:
+            listings[folder] = stack_files(folder)
+        reason = not_radiance(task.source, listings[folder])
         if reason is None:
             kept.append(task)
         else:

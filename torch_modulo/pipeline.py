@@ -61,6 +61,7 @@ from torch_modulo._scene_rules import (
 from torch_modulo._task import Task
 from torch_modulo.io import read_image
 from torch_modulo.radiance import NONFINITE, RADIANCE_EXTENSIONS, load_radiance
+from torch_modulo.sensors.manifest import TRUTH_FILE  # the ground truth simulate writes; unwrap scores against it
 
 if TYPE_CHECKING:
     from torch_modulo.sensors import FrameStack
@@ -87,8 +88,6 @@ __all__ = [
 TONEMAP_OPS = ("histogram", "reinhard", "gamma", "log", "clahe")
 #: The noise model ``simulate`` uses unless told otherwise: the preset that ``SimulatedModuloSensor()`` uses.
 DEFAULT_NOISE = "photon-counting"
-#: The ground truth ``simulate`` writes into each frame stack; ``unwrap`` scores against it when it is there.
-TRUTH_FILE = "radiance.exr"
 #: Modules each command's workers import up front.
 PRELOAD = {
     "simulate": ("torch_modulo.io", "torch_modulo.sensors", "torch_modulo.pipeline"),

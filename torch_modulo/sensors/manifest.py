@@ -51,6 +51,8 @@ __all__ = [
 
 #: The folder manifest :func:`~torch_modulo.sensors.write_frames` writes and :class:`FileSensor` reads first.
 MANIFEST = "frames.json"
+#: The ground truth ``torch-modulo simulate`` writes into each frame stack beside its frames (radiance, not a frame).
+TRUTH_FILE = "radiance.exr"
 #: The dtypes a manifest's ``"dtype"`` may name.
 DTYPES = {"float16": torch.float16, "bfloat16": torch.bfloat16, "float32": torch.float32, "float64": torch.float64}
 _EXPOSURE_KEYS = ("exposure", "exposure_time", "ExposureTime")
