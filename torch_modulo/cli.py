@@ -555,6 +555,7 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
             preload=pipeline.PRELOAD[args.command] + (("torch_modulo.singleshot",) if single else ()),
             weigh=folders.count_values,
             merge_timeout=args.merge_timeout,
+            skipped=not_radiance,
         )
     except BatchError as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
@@ -565,28 +566,14 @@ def _run_folder_command(parser: argparse.ArgumentParser, args: argparse.Namespac
         where = f"rank {env.rank}: "
         if report.parts is None:  # this rank's own part (rank 0 holds the merged report under torchrun)
             report_file = report_file.with_name(f"{report_file.stem}.rank{env.rank}{report_file.suffix}")
-    if not_radiance and (env.world_size == 1 or report.parts is not None):
-        _add_skipped(report, not_radiance, report_file, prog)
+    if env.rank == 0:
+        for entry in not_radiance:
+            print(f"{prog}: skipped {entry['input']}: {entry['reason']}", file=sys.stderr)
     print(f"{where}{report.summary()} (report: {report_file})", file=sys.stderr)
     scores = _accuracy_summary(report.done)
     if scores:
         print(f"{where}{prog}: {scores}", file=sys.stderr)
     return report.exit_code
-
-
-def _add_skipped(report: Any, entries: Sequence[dict[str, Any]], report_file: Path, prog: str) -> None:
-    """Add inputs skipped before the run (``tonemap``: frames, confidence maps) to the report and its file."""
-    from torch_modulo._atomic import write_json
-
-    report.skipped.extend(entries)
-    report.total += len(entries)
-    report.sort()
-    for entry in entries:
-        print(f"{prog}: skipped {entry['input']}: {entry['reason']}", file=sys.stderr)
-    try:
-        write_json(report_file, report.to_dict())
-    except OSError as error:
-        report.errors.append(f"the report could not be written: {type(error).__name__}: {error}")
 
 
 def _accuracy_summary(done: Sequence[dict[str, Any]]) -> str:

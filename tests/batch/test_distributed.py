@@ -123,6 +123,41 @@ class TestSharding:
             assert (tmp_path / "out" / f"upper-report.rank{rank}.json").is_file()
 
 
+class TestSkippedInputs:
+    """Inputs the caller leaves out of the run (``skipped=``, as ``tonemap`` does with frames) are counted once in the
+    report of every mode: one process, ranks one after the other (the last one merges), ranks under torchrun."""
+
+    SKIPPED = [{"input": "frame.png", "outputs": ["frame.png"], "reason": "not radiance: a frame"}]
+
+    def _check(self, saved: dict[str, Any]) -> None:
+        assert saved["counts"] == {"total": 6, "done": 5, "skipped": 1, "failed": 0, "not_finished": 0}
+        assert saved["skipped"] == self.SKIPPED
+
+    def test_one_process(self, tmp_path: Path) -> None:
+        tasks = _make_inputs(tmp_path, {f"f{i}.txt": f"text {i}" for i in range(5)})
+        report = _run(tasks, tmp_path, skipped=self.SKIPPED)
+        self._check(report.to_dict())
+        self._check(json.loads((tmp_path / "out" / "upper-report.json").read_text()))
+
+    def test_ranks_one_after_the_other(self, tmp_path: Path) -> None:
+        # Regression: the command line added the skipped inputs after the run, and only where it saw the merged
+        # report; ranks run one after the other merge in the last rank, so they never reached the report.
+        tasks = _make_inputs(tmp_path, {f"f{i}.txt": f"text {i}" for i in range(5)})
+        for rank in range(2):
+            environ = {"RANK": str(rank), "WORLD_SIZE": "2", "LOCAL_WORLD_SIZE": "2"}
+            _run(tasks, tmp_path, environ=environ, skipped=self.SKIPPED)
+        self._check(json.loads((tmp_path / "out" / "upper-report.json").read_text()))
+
+    def test_torchrun_ranks(self, tmp_path: Path, group: FakeGroup) -> None:
+        tasks = _make_inputs(tmp_path, {f"f{i}.txt": f"text {i}" for i in range(5)})
+        thread = threading.Thread(target=lambda: _run(tasks, tmp_path, environ=_environ(1), skipped=self.SKIPPED))
+        thread.start()
+        merged = _run(tasks, tmp_path, environ=_environ(0), merge_timeout=30, skipped=self.SKIPPED)
+        thread.join()
+        self._check(merged.to_dict())
+        self._check(json.loads((tmp_path / "out" / "upper-report.json").read_text()))
+
+
 class TestBalance:
     @pytest.mark.parametrize("n", [0, 1, 5, 8, 13])
     @pytest.mark.parametrize("world", [1, 2, 3, 4])

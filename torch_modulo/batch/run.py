@@ -326,10 +326,16 @@ def _write(run: _Run, path: Path, data: Mapping[str, Any], report: BatchReport) 
         run.log(f"{run.command}: error: {message}")
 
 
-def _finish(run: _Run, merge_timeout: float | None) -> BatchReport:
-    """Write the report (one process) or this rank's part, and merge the parts (see the distributed module)."""
+def _finish(run: _Run, merge_timeout: float | None, skipped: Sequence[Mapping[str, Any]] = ()) -> BatchReport:
+    """Write the report (one process) or this rank's part, and merge the parts (see the distributed module).
+
+    ``skipped``: inputs the caller left out of the run, with the reason, counted in rank 0's part (so once in the
+    merged report)."""
     report, env = run.report, run.env
     assert report is not None
+    if skipped and env.rank == 0:
+        report.skipped.extend(dict(entry) for entry in skipped)
+        report.total += len(skipped)
     report.finished = now()
     report.seconds = time.perf_counter() - run.start
     report.sort()
@@ -385,6 +391,7 @@ def run_batch(
     preload: Sequence[str] = (),
     weigh: Callable[[Task], float] = source_bytes,
     merge_timeout: float | None = None,
+    skipped: Sequence[Mapping[str, Any]] = (),
 ) -> BatchReport:
     """Run ``job`` once per task that is not complete yet; write the done markers and the JSON report.
 
@@ -410,6 +417,8 @@ def run_batch(
         weigh: what a task costs, to share the tasks between ranks (default: the input's size in bytes).
         merge_timeout: seconds rank 0 waits for the other ranks' report parts after its own work (default: as
             long as they run; torchrun stops rank 0 when another rank fails).
+        skipped: report entries (``input``, ``outputs``, ``reason``) of inputs the caller left out of ``tasks``
+            (``tonemap``: frames, confidence maps): counted as skipped in the report, once (in rank 0's part).
 
     Returns:
         The report (on rank 0 of a torchrun launch, the merged report of every rank).
@@ -459,4 +468,4 @@ def run_batch(
 
     mine = _plan(run, tasks, workers, force, weigh)
     _execute(run, mine, workers, progress, ray_address, preload)
-    return _finish(run, merge_timeout)
+    return _finish(run, merge_timeout, skipped)
