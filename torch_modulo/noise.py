@@ -93,7 +93,7 @@ class NoiseModel:
         # model whose variance (or dark counts) is beyond float64's range there, rather than overflow later.
         read = self.read_noise / q
         variance = 2.0**53 / q + read * read  # inf (not OverflowError) past float64's range
-        if not (math.isfinite(variance) and math.isfinite(self.dark_current / q)):
+        if not (math.isfinite(variance) and math.isfinite(self.dark_counts)):
             raise ValueError(
                 f"electrons_per_count={q!r} with read_noise={self.read_noise!r} and dark_current={self.dark_current!r} "
                 "makes the count variance (counts / electrons_per_count + (read_noise / electrons_per_count)^2) or "
