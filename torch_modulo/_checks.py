@@ -538,8 +538,8 @@ def exposure_tensor(
     if isinstance(exposure, torch.Tensor):
         if not (exposure.is_floating_point() or exposure.dtype in _INTEGER_DTYPES):
             raise TypeError(f"{name} must hold real numbers; got dtype {exposure.dtype}")
-        if like.device.type != "meta":
-            check_has_values(exposure, name)  # its values are copied to ``like``'s device
+        if like.device.type != "meta" or (validation_enabled() and exposure.numel()):
+            check_has_values(exposure, name)  # its values are copied to ``like``'s device, or checked
         source = exposure
     elif _is_flag_or_text(exposure):
         raise TypeError(f"{name} must be a positive number or tensor; got {exposure!r}")
@@ -565,14 +565,15 @@ def exposure_tensor(
                 ) from None
     else:
         raise TypeError(f"{name} must be a positive number, a sequence of numbers or a tensor; got {exposure!r}")
+    source = source.to(dtype=like.dtype)
     if validation_enabled() and source.numel():
         # Checked where the values are (the CPU for Python numbers: also for a ``like`` on the meta device), in
         # ``like``'s dtype, which is what the operation uses (float16 turns 1e5 into inf).
-        values = check_has_values(source, name).detach().to(dtype=like.dtype)
+        values = source.detach()
         finite = torch.isfinite(values)
         if not bool(finite.all()):
             raise ValueError(f"{name} must be finite; got {values[~finite].flatten()[0].item()}")
         lo = float(values.min())
         if lo <= 0:
             raise ValueError(f"{name} must be positive; got {lo}")
-    return source.to(device=like.device, dtype=like.dtype)
+    return source.to(device=like.device)
