@@ -111,6 +111,7 @@ from torch_modulo._image_metadata import (
 
 __all__ = [
     "WRITABLE_EXTENSIONS",
+    "integer_sample_bits",
     "read_image",
     "read_metadata",
     "write_image",
@@ -362,6 +363,32 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
         return metadata_from_spec(inp.spec())
     finally:
         inp.close()
+
+
+def integer_sample_bits(path: str | os.PathLike[str]) -> int | None:
+    """The bits of an image file's integer samples (the widest channel's), or None for a float file (EXR, HDR, PFM,
+    float TIFF). Only the header is read.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        OSError: OpenImageIO cannot read it.
+
+    Example:
+        >>> import os, tempfile
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     png = write_image(os.path.join(folder, "x.png"), torch.zeros(1, 2, 2), dtype="uint16")
+        ...     exr = write_image(os.path.join(folder, "x.exr"), torch.zeros(1, 2, 2))
+        ...     integer_sample_bits(png), integer_sample_bits(exr)
+        (16, None)
+    """
+    inp = _open(_path(path))
+    try:
+        spec = inp.spec()
+        formats = list(spec.channelformats) or [spec.format]
+    finally:
+        inp.close()
+    bits = [8 * f.size() for f in formats if f.basetype in _INTEGER_BASETYPES]
+    return max(bits) if bits else None
 
 
 @overload

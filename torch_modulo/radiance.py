@@ -27,11 +27,10 @@ from __future__ import annotations
 
 import os
 
-import OpenImageIO as oiio
 import torch
 
 from torch_modulo._checks import check_choice, check_flag
-from torch_modulo.io import read_image
+from torch_modulo.io import integer_sample_bits, read_image
 
 __all__ = ["NONFINITE", "RADIANCE_EXTENSIONS", "display_referred", "load_radiance"]
 
@@ -41,14 +40,6 @@ RADIANCE_EXTENSIONS = (".exr", ".hdr", ".pfm", ".tif", ".tiff")
 NONFINITE = ("replace", "raise")
 
 _CHANNELS = (None, 1, 3, "auto")
-_INTEGER_TYPES = {
-    oiio.UINT8: 8,
-    oiio.INT8: 8,
-    oiio.UINT16: 16,
-    oiio.INT16: 16,
-    oiio.UINT32: 32,
-    oiio.INT32: 32,
-}
 
 
 def display_referred(path: str | os.PathLike[str]) -> str | None:
@@ -67,18 +58,8 @@ def display_referred(path: str | os.PathLike[str]) -> str | None:
         ...     display_referred(png), display_referred(exr)
         ('8-bit integers', None)
     """
-    if not os.path.exists(path):
-        raise FileNotFoundError(2, "image file not found", str(path))
-    image = oiio.ImageInput.open(str(path))
-    if image is None:
-        raise OSError(f"cannot read image {path}: {oiio.geterror()}")
-    try:
-        spec = image.spec()
-        formats = list(spec.channelformats) or [spec.format]
-    finally:
-        image.close()
-    bits = [_INTEGER_TYPES.get(f.basetype) for f in formats]
-    return f"{max(b for b in bits if b)}-bit integers" if any(bits) else None
+    bits = integer_sample_bits(path)
+    return f"{bits}-bit integers" if bits else None
 
 
 def _refuse_display_referred(path: str | os.PathLike[str]) -> None:
