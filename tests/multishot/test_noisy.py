@@ -69,6 +69,41 @@ class TestNoisyDecoding:
         assert 0.8 < float(z.std()) < 1.25
         assert abs(float(z.mean())) < 0.1
 
+    @pytest.mark.parametrize("preset", ["photon-counting", "q16"])
+    def test_flat_fields_are_unbiased(self, preset: str) -> None:
+        # Flat fields decoded from the plan for 15 stops: the mean is no further from the truth than that of the
+        # longest frame alone with its rollover known, (c + 1/2) / tau, plus 0.1 + 0.5% (the clip at zero biases
+        # every non-negative estimate near zero). The old estimate put black at 1.4 counts (photon-counting).
+        noise = NoiseModel.preset(preset)
+        taus = tm.plan_exposures(15, 8, noise=noise, longest=1.0)
+        levels = torch.tensor([0.0, 0.25, 1.0, 4.0, 16.0, 100.0, 1000.0], dtype=torch.float64)
+        radiance = levels.view(-1, 1, 1, 1).expand(-1, 1, 48, 48)
+        moduli = SimulatedModuloSensor(8, noise, seed=11)(radiance, taus).moduli
+        decoded = tm.unwrap_multi(moduli, taus, 8, noise=noise).mean(dim=(1, 2, 3))
+        alone = SimulatedIntensitySensor(53, noise, seed=12)(radiance, [1.0]).frames[:, 0]
+        reference = (alone + 0.5).mean(dim=(1, 2, 3))
+        allowed = (reference - levels).abs() + 0.1 + 0.005 * levels
+        assert bool(((decoded - levels).abs() <= allowed).all()), (decoded, reference)
+
+    def test_flat_field_variance_is_calibrated(self) -> None:
+        # Where the counts are many, the reported variance matches the spread of the estimate.
+        taus = _plan(PHOTON)
+        radiance = torch.full((1, 1, 96, 96), 300.0, dtype=torch.float64)
+        moduli = SimulatedModuloSensor(8, PHOTON, seed=13)(radiance, taus).moduli
+        estimate, variance = tm.unwrap_multi(moduli, taus, 8, noise=PHOTON, return_variance=True)
+        assert 0.9 < float(estimate.std() / variance.sqrt().mean()) < 1.1
+        assert float(((estimate - radiance).abs() > 3 * variance.sqrt()).double().mean()) < 0.01
+
+    def test_float32_moduli_decode_like_float64(self) -> None:
+        # float32 moduli are decoded in float32: the same rollover decisions, the radiance to float32 rounding.
+        radiance = _scene(8)
+        taus = _plan(PHOTON)
+        moduli = SimulatedModuloSensor(8, PHOTON, seed=9)(radiance, taus).moduli
+        wide = tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)
+        narrow = tm.unwrap_multi(moduli.float(), taus, 8, noise=PHOTON)
+        assert narrow.dtype == torch.float32
+        torch.testing.assert_close(narrow.double(), wide, rtol=1e-5, atol=1e-5)
+
     def test_without_noise_nothing_changes(self) -> None:
         radiance = _scene(3) * 0.5
         taus = [1.0, 100.0, 10000.0]
@@ -151,6 +186,20 @@ class TestNoisyDecodingExtremes:
         if unit > 1:  # the variance, 1 / unit^2 of the reference's, is within float64's range only here
             _, var = tm.unwrap_multi(moduli, [t * unit for t in taus], 8, noise="q16", return_variance=True)
             assert torch.allclose(var * unit * unit, variance, rtol=1e-9, atol=0.0)
+
+    @pytest.mark.parametrize("unit", [2.0**134, 2.0**100, 2.0**-100])
+    def test_float32_moduli_in_extreme_units(self, unit: float) -> None:
+        # float32 moduli decode in float32, in a power-of-two unit of their own: exposures beyond float32's range
+        # (2**134) decode to the radiance the float64 decoder gives, wherever it is a normal float32 number.
+        radiance = _scene(10, (1, 1, 8, 8))
+        taus = _plan(NoiseModel.preset("q16"))
+        moduli = SimulatedModuloSensor(8, "q16", seed=2)(radiance, taus).moduli.float()
+        reference = tm.unwrap_multi(moduli, taus, 8, noise="q16").double()
+        scaled = tm.unwrap_multi(moduli, [t * unit for t in taus], 8, noise="q16")
+        assert scaled.dtype == torch.float32 and bool(torch.isfinite(scaled).all())
+        normal = reference / unit >= torch.finfo(torch.float32).tiny
+        assert bool(normal.any())
+        torch.testing.assert_close(scaled.double()[normal] * unit, reference[normal], rtol=1e-6, atol=0.0)
 
     def test_power_of_two_units_round_nothing(self) -> None:
         # The decoder works in a power-of-two unit near the exposures' middle: results scale exactly with the unit.

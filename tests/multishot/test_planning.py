@@ -199,5 +199,8 @@ class TestPlanExposuresExtremes:
             counts = tm.sensors.SimulatedIntensitySensor(53, noise, seed=4)(radiance, taus).frames[:, -1]
             decoded = (tm.unwrap_multi(moduli, taus, 8, noise=noise) - radiance).abs() / radiance
             oracle = (counts / taus[-1] - radiance).abs() / radiance
-            assert float((decoded > 0.5).double().mean()) <= float((oracle > 0.5).double().mean()) + 1e-3
+            # "More than half off", past a hair: at E_min (one count) a quantum-limited dfpa pixel's estimate
+            # (c + 1/2) is half off whichever count it reads.
+            gross = 0.5 + 1e-3
+            assert float((decoded > gross).double().mean()) <= float((oracle > gross).double().mean()) + 1e-3
             assert float(decoded.median()) <= 1.5 * float(oracle.median())

@@ -10,19 +10,135 @@ estimate. Frame ``i`` is decoded only while the predicted count's standard devia
 
 stays within ``2^N / (2 z)`` (``z`` = ``sigmas``: the rounding is then wrong with probability about that of a
 ``z``-sigma Gaussian tail); from the first frame where it does not, the pixel's remaining frames are ignored (their
-noise only grows with the exposure). The radiance is the inverse-variance weighted mean of the decoded frames'
-estimates ``(I^{(i)} + 1/2) / \tau_i``, with every frame's variance evaluated at one common radiance (so a frame's
-own noise does not set its weight), less the dark counts.
+noise only grows with the exposure).
+
+The radiance is then the weighted least-squares fit of the decoded counts to their expected values under the noise
+model. A frame whose expected count (signal plus dark) is ``x`` reads on average
+
+.. math:: \mathrm{E}[I] = x - \tfrac12 + b(x),
+
+where ``b`` is what the counter's clip at zero (a negative charge reads 0) and, where the noise does not smooth it,
+its floor add to the smooth ``x - 1/2``. :func:`_clip_curve` tabulates ``b`` once per noise model: exactly, over
+Poisson electrons and Gaussian read noise, where a count is at most 64 electrons; with many electrons per count
+the charge is Gaussian on the count scale (spread ``s^2 = x / q + (\sigma_r / q)^2``) and
+``b = \sum_{j \ge 0} P(y < -j) \approx s\,G(z) - \varphi(z) / (24 s)``, ``z = (x - 1/2) / s``, ``G`` the Gaussian
+loss function (the midpoint rule for the sum). ``b`` is about 0.68 counts at ``x = 0`` for a 1-count read noise,
+and vanishes a few ``s`` above zero. The estimate ``E`` solves
+
+.. math:: \sum_i \frac{\tau_i}{\operatorname{Var}(I^{(i)})} \left(I^{(i)} + \tfrac12 - d_i - b(\tau_i E + d_i)
+   - \tau_i E\right) = 0
+
+over the decoded frames (``d_i`` the dark counts; every variance at one common radiance, the clip-corrected running
+estimate, so that a frame's own noise does not set its weight); it is clamped at 0. Without the ``b`` term the
+short frames of a dark pixel, which read 0 or 1 where their expected count is far below one, lift its estimate by
+about a count. The solution depends on the raw weighted mean of ``(I + 1/2) / tau`` and on the number of frames
+used only, so it is solved by Newton's method once per batch item on a grid of raw means (:func:`_item_table`) and
+read off by linear interpolation per pixel.
+
+The work runs in float32 unless the moduli are float64 (:func:`work_dtype`). On the CPU it runs item by item over
+chunks of pixels; under ``torch.compile`` (and on other devices) the same arithmetic runs on the whole stack.
 """
 
 from __future__ import annotations
 
+import functools
+import math
+from dataclasses import dataclass
+
 import torch
 
+from torch_modulo._chunks import chunk_on_cpu, column_chunks
 from torch_modulo.multishot.stack import wide_dtype
 from torch_modulo.noise import NoiseModel
 
-__all__ = ["decode_noisy", "exposure_unit", "weighted_estimate"]
+__all__ = ["decode_noisy", "exposure_unit", "weighted_estimate", "work_dtype"]
+
+#: The clip-bias tables hold the correction in counts at the longest used frame for raw counts ``expm1(u)``, ``u``
+#: on ``_GRID`` points up to ``log1p(_TOP)``; above ``_TOP`` counts it is taken as constant (it tends to one: only
+#: the shortest frames, which read a few counts, still carry a clip bias there).
+_GRID = 256
+_TOP = 2.0**16
+#: Newton steps per grid point of a table (from above; the last ones change nothing measurable).
+_NEWTON_STEPS = 8
+#: Columns per CPU chunk.
+_CHUNK = 1 << 16
+
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+_INV_SQRT_2 = 1.0 / math.sqrt(2.0)
+
+
+def work_dtype(frames: torch.Tensor) -> torch.dtype:
+    """The dtype the noise-aware decoding runs in: float64 for float64 moduli (where the device has it), float32
+    otherwise. float32 holds every decision the decoder makes: a frame is decoded only while its predicted count's
+    spread is a fair share of a period, far above float32's rounding of the count."""
+    if frames.dtype == torch.float64 and frames.device.type != "mps":
+        return torch.float64
+    return torch.float32
+
+
+@dataclass(frozen=True)
+class _Counts:
+    """The noise model's count statistics as plain numbers, for whole-tensor arithmetic."""
+
+    per_count: float  # 1 / q with shot noise, else 0: the variance's slope in the expected count
+    read: float  # (read_noise / q)^2: the collected charge's variance at zero signal, in counts^2
+    floor: float  # read + 1/12: the count variance at zero signal
+
+    @classmethod
+    def of(cls, noise: NoiseModel) -> _Counts:
+        q = noise.electrons_per_count
+        read = (noise.read_noise / q) ** 2
+        return cls(1.0 / q if noise.shot_noise else 0.0, read, read + 1.0 / 12.0)
+
+    def variance(self, expected: torch.Tensor) -> torch.Tensor:
+        """Var(I) of frames whose expected count (signal plus dark) is ``expected`` (>= 0)."""
+        return expected * self.per_count + self.floor
+
+    def clip_bias(self, expected: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``b(x) = E[I] - (x - 1/2)`` at ``x = expected`` (module docstring), and its slope, from
+        :func:`_clip_curve` by linear interpolation (the last value beyond it)."""
+        step, curve = _clip_curve(self)
+        curve = curve.to(device=expected.device, dtype=expected.dtype)
+        u = (expected / step).clamp(0.0, curve.numel() - 1.0)
+        cell = u.floor().clamp_(max=curve.numel() - 2.0)
+        low = curve[cell.long()]
+        rise = curve[cell.long() + 1] - low
+        return low + (u - cell) * rise, torch.where(u < curve.numel() - 1.0, rise / step, 0.0)
+
+
+@functools.lru_cache(maxsize=16)
+def _clip_curve(model: _Counts, step: float = 1.0 / 64.0) -> tuple[float, torch.Tensor]:
+    """``b(x) = E[I] - (x - 1/2)`` on ``x = 0, step, 2 step, ...`` until it has settled (float64, on the CPU).
+
+    Where the charge quantum is a few electrons or more per count (``q <= 64``), ``E[I]`` is the exact mean of
+    ``max(floor(k / q + e), 0)`` over Poisson ``k`` electrons and Gaussian read noise ``e`` (``read`` counts^2): the
+    clip at zero, and the floor where the read noise does not smooth it. With many electrons per count the charge is
+    Gaussian on the count scale and ``b`` is its clip bias, ``s G((x - 1/2) / s) - phi((x - 1/2) / s) / (24 s)``
+    (the midpoint rule's sum of ``P(y < -j)``; the floor's steps are left out, as they are below the noise)."""
+    sd = math.sqrt(model.read)
+    top = 1.0
+    for _ in range(50):  # where b has settled: 9 deviations above half a count
+        top = 0.5 + 9.0 * math.sqrt(top * model.per_count + model.read) + 8.0
+    x = torch.arange(0.0, top + step, step, dtype=torch.float64)
+    q = 1.0 / model.per_count if model.per_count else math.inf
+    if q > 64.0:
+        s = (x * model.per_count + model.read).clamp_min(1e-12).sqrt()
+        centre = x - 0.5
+        z = centre / s
+        density = torch.exp(-0.5 * z * z) * _INV_SQRT_2PI
+        bias = density * (s - 1.0 / (24.0 * s)) - centre * 0.5 * torch.erfc(z * _INV_SQRT_2)
+        return step, bias.clamp_min(0.0)
+    lam = x * q  # mean electrons
+    most = math.ceil(top * q + 12.0 * math.sqrt(top * q) + 12.0)  # electrons: the Poisson tail at the top
+    k = torch.arange(0.0, most, dtype=torch.float64)
+    level = k / q  # counts of charge
+    if sd > 0:
+        n = torch.arange(1.0, math.ceil(most / q + 9.0 * sd + 2.0), dtype=torch.float64)
+        reading = torch.special.ndtr((level.unsqueeze(1) - n) / sd).sum(dim=1)  # E[max(floor(k/q + e), 0)]
+    else:
+        reading = level.floor()
+    pmf = torch.exp(torch.xlogy(k, lam.unsqueeze(1)) - lam.unsqueeze(1) - torch.lgamma(k + 1.0))
+    return step, pmf @ reading - (x - 0.5)
 
 
 def decode_noisy(
@@ -36,8 +152,8 @@ def decode_noisy(
     """Decode a sorted exposure stack under ``noise``.
 
     It runs on each item's exposures divided by a power of two near their geometric middle (which changes no
-    rounding; the dark counts follow the unit), so that exposures in any unit within float64's range decode, where
-    ``tau^2`` alone would overflow or underflow.
+    rounding; the dark counts follow the unit), so that exposures in any unit within the work dtype's range decode,
+    where ``tau^2`` alone would overflow or underflow.
 
     Args:
         frames: (B, M, n) moduli, exposures sorted ascending, integers in ``[0, 2**bits)``.
@@ -51,48 +167,148 @@ def decode_noisy(
     Returns:
         ``(radiance, variance, used)``, each (B, n): the radiance estimate (counts per unit exposure, >= 0; or the
         counts), its variance from the noise model, and the number of frames decoded per pixel (the shortest is
-        always used). Radiance and variance are float64 (float32 on devices without float64); they are ``inf`` where
-        they are beyond its range.
+        always used). All three are in :func:`work_dtype` (float64 for float64 moduli, else float32); radiance and
+        variance are ``inf`` where they are beyond its range.
     """
-    work = wide_dtype(frames.device)
-    x = frames.to(work)
-    up, down = exposure_unit(tau, work)
-    t = (tau.to(device=x.device, dtype=work) * down.unsqueeze(1)).unsqueeze(-1)  # (B, M, 1): tau / s
-    m = x.shape[1]
-    period = float(2**bits)
-    gate = (period / (2.0 * sigmas)) ** 2
-
-    counts = torch.full_like(x, float("nan"))  # decoded counts; NaN where a frame is not used
-    counts[:, 0] = x[:, 0]  # the shortest exposure does not roll over
-    estimate = (x[:, 0] + 0.5) / t[:, 0]
-    weight = t[:, 0] ** 2 / noise.count_variance(x[:, 0] + 0.5)
-    total = weight.clone()
-    weighted = weight * estimate
-    active = torch.ones_like(estimate, dtype=torch.bool)
-    for i in range(1, m):
-        predicted = t[:, i] * estimate - 0.5
-        own = noise.count_variance(predicted + 0.5)
-        spread = t[:, i] ** 2 / total + own
-        active &= spread <= gate
-        k = torch.round((predicted - x[:, i]) / period).clamp_min_(0.0)
-        decoded = x[:, i] + k * period
-        counts[:, i] = torch.where(active, decoded, counts[:, i])
-        weight = torch.where(active, t[:, i] ** 2 / own, 0.0)  # the prediction's variance: independent of frame i
-        total += weight
-        weighted += weight * torch.where(active, (decoded + 0.5) / t[:, i], 0.0)
-        estimate = weighted / total
-
-    # Re-weight with every decoded frame's variance at the final estimate.
-    used = torch.isfinite(counts)
-    radiance, total = weighted_estimate(counts, used, t, estimate.unsqueeze(1), noise)
-    variance = 1.0 / total
-    up, down = up.unsqueeze(1), down.unsqueeze(1)
+    work, wide = work_dtype(frames), wide_dtype(frames.device)
+    up, down = exposure_unit(tau, wide)
+    t = (tau.to(device=frames.device, dtype=wide) * down.unsqueeze(1)).to(work)  # (B, M): tau / s
+    dark = (noise.dark_counts * up).unsqueeze(1).to(work)  # (B, 1): dark counts per unit of t
+    model = _Counts.of(noise)
+    table = _clip_table(t, dark, model)
+    b, m, n = frames.shape
+    args = (float(2**bits), (2**bits / (2.0 * sigmas)) ** 2, model)
+    if chunk_on_cpu(frames) and not torch.compiler.is_compiling() and n:
+        radiance = torch.empty((b, n), dtype=work)
+        variance, used = torch.empty_like(radiance), torch.empty_like(radiance)
+        # Item by item (each item's exposures as numbers), in chunks whose columns depend only on n: an item decodes
+        # bit for bit the same in any batch (vectorised arithmetic may round differently in a vector's tail).
+        for item in range(b):
+            rows = slice(item, item + 1)
+            exposures = t[item].tolist()
+            for cols in column_chunks(n, 1, chunk=_CHUNK, min_width=_CHUNK):
+                out = _decode(frames[rows, :, cols].to(work), exposures, t[rows], dark[rows], table[rows], *args)
+                radiance[rows, cols], variance[rows, cols], used[rows, cols] = out
+    else:
+        exposures = list(t.unsqueeze(-1).unbind(1))  # (B, 1) each
+        radiance, variance, used = _decode(frames.to(work), exposures, t, dark, table, *args)
     if return_counts:  # tau_max (E - D) = (tau_max / s) (s E - s D): no unit enters
-        longest = t[:, -1]
-        radiance = (radiance - noise.dark_counts * up).clamp_min_(0.0) * longest
-        return radiance, variance * (longest * longest), used.sum(dim=1)
-    radiance = (radiance * down - noise.dark_counts).clamp_min_(0.0)
-    return radiance, variance * down * down, used.sum(dim=1)
+        longest = t[:, -1:]
+        return (radiance - dark) * longest, variance * (longest * longest), used
+    down = down.unsqueeze(1).to(work)  # exact while the radiance is within the work dtype's range
+    return ((radiance - dark) * down).clamp_min(0.0), variance * down * down, used
+
+
+def _decode(
+    x: torch.Tensor,
+    exposures: list[float] | list[torch.Tensor],
+    t: torch.Tensor,
+    dark: torch.Tensor,
+    table: torch.Tensor,
+    period: float,
+    gate: float,
+    model: _Counts,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Decode (B, M, w) moduli: the estimate of ``E + dark`` in the work unit (>= ``dark``), its variance and the
+    frames used, each (B, w).
+
+    ``exposures`` holds the M exposures ``t_i`` in the work unit, as numbers (one item) or (B, 1) tensors; ``t`` is
+    the same as a (B, M) tensor, for the table lookups."""
+    m = x.shape[1]
+    half = x + 0.5  # count + 1/2 of each frame, once its rollovers are added
+    used = torch.ones_like(half[:, 0])
+    active = torch.ones_like(used)  # 1 while the pixel decodes the frame, then 0
+    decoded = [active]
+    t0 = exposures[0]
+    total = t0 * t0 / model.variance(half[:, 0])
+    weighted = total * half[:, 0] / t0
+    for i in range(1, m):
+        ti = exposures[i]
+        inverse = 1.0 / total
+        expected = weighted * inverse * ti  # the predicted count + 1/2
+        own = model.variance(expected)
+        active = active * (own + inverse * (ti * ti) <= gate)
+        decoded.append(active)
+        k = ((expected - half[:, i]) / period).round_().clamp_min_(0.0)
+        half[:, i] += k * period
+        weight = active * (ti * ti) / own  # the prediction's variance: independent of frame i
+        total = total + weight
+        weighted = weighted + weight * half[:, i] / ti
+        used = used + active
+    # The least-squares fit with every used frame's weight t / Var(I) at one radiance, the clip-corrected running
+    # estimate; then its clip bias corrected through the item's table.
+    first = _unclip(weighted / total, used, t, table)
+    norm = torch.zeros_like(first)
+    raw = torch.zeros_like(first)
+    for i in range(m):
+        ti = exposures[i]
+        slope = decoded[i] / (first * model.per_count + model.floor / ti)  # t / Var(I)
+        norm = norm + slope * ti
+        raw = raw + slope * half[:, i]
+    return _unclip(raw / norm, used, t, table), 1.0 / norm, used
+
+
+@torch.library.custom_op("torch_modulo::clip_table", mutates_args=())
+def _clip_table_op(t: torch.Tensor, dark: torch.Tensor, per_count: float, read: float) -> torch.Tensor:
+    """:func:`_clip_table` as an operator that ``torch.compile`` calls as it is (its loops stay out of the graph)."""
+    model = _Counts(per_count, read, read + 1.0 / 12.0)
+    rows = [_item_table(tuple(a), d, model) for a, d in zip(t.tolist(), dark.squeeze(1).tolist(), strict=True)]
+    if not rows:
+        return t.new_empty((0, t.shape[1], _GRID))
+    return torch.stack(rows).to(device=t.device, dtype=t.dtype)
+
+
+@_clip_table_op.register_fake
+def _(t: torch.Tensor, dark: torch.Tensor, per_count: float, read: float) -> torch.Tensor:
+    return t.new_empty((t.shape[0], t.shape[1], _GRID))
+
+
+def _clip_table(t: torch.Tensor, dark: torch.Tensor, model: _Counts) -> torch.Tensor:
+    """Per item and number of used frames ``L``, the clip-bias correction of the least-squares estimate (module
+    docstring) on a grid of raw estimates: (B, M, _GRID) in ``t``'s dtype and on its device, for (B, M) exposures
+    ``t`` and (B, 1) dark counts in the work unit (see :func:`_item_table`)."""
+    return _clip_table_op(t, dark, model.per_count, model.read)
+
+
+@functools.lru_cache(maxsize=64)
+def _item_table(t: tuple[float, ...], dark: float, model: _Counts) -> torch.Tensor:
+    """One item's table, (M, _GRID) float64 on the CPU.
+
+    Entry ``[L - 1, j]`` is ``t_{L-1} (F - r_j)``, the correction in counts at the longest used frame, where ``F``
+    (>= the dark counts) solves ``F + B_L(F) = r_j`` for the raw estimate ``r_j = expm1(u_j) / t_{L-1}``; ``B_L`` is
+    the clip bias of the mean over the ``L`` shortest frames. Newton's method from ``F = r_j`` (``F + B_L(F)``
+    increases, and where it is convex the steps approach the root from above without passing it)."""
+    exposures = torch.tensor(t, dtype=torch.float64)
+    grid = torch.expm1(torch.linspace(0.0, math.log1p(_TOP), _GRID, dtype=torch.float64))
+    out = torch.empty((len(t), _GRID), dtype=torch.float64)
+    for last in range(len(t)):
+        frames = exposures[: last + 1].unsqueeze(-1)  # (L, 1)
+        raw = grid / t[last]  # (G,)
+        fit = raw.clone()
+        for _ in range(_NEWTON_STEPS):
+            expected = frames * fit
+            slope = frames / model.variance(expected)
+            bias, gradient = model.clip_bias(expected)
+            norm = (slope * frames).sum(dim=0)
+            excess = fit + (slope * bias).sum(dim=0) / norm - raw
+            steep = 1.0 + (slope * frames * gradient).sum(dim=0) / norm
+            fit = (fit - excess / steep.clamp_min(0.25)).clamp_min(dark)
+        out[last] = (fit - raw) * t[last]
+    return out
+
+
+def _unclip(raw: torch.Tensor, used: torch.Tensor, t: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
+    """The clip-corrected fit for raw estimates ``raw`` (B, w) over ``used`` frames, by linear interpolation in the
+    items' tables (:func:`_clip_table`)."""
+    last = used.long() - 1
+    longest = torch.gather(t, 1, last)  # t of each pixel's longest used frame
+    counts = raw * longest
+    u = (torch.log1p(counts) * ((_GRID - 1) / math.log1p(_TOP))).clamp_(0.0, _GRID - 1.0)
+    cell = u.floor().clamp_(max=_GRID - 2.0)
+    index = last * _GRID + cell.long()
+    flat = table.reshape(table.shape[0], -1)
+    low = torch.gather(flat, 1, index)
+    return raw + (low + (u - cell) * (torch.gather(flat, 1, index + 1) - low)) / longest
 
 
 def exposure_unit(tau: torch.Tensor, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
