@@ -40,6 +40,14 @@ def _stack() -> tm.ExposureStack:
     return tm.MultiExposureCapture(TAUS, bits=8)(_x())
 
 
+def _noisy() -> tuple[torch.Tensor, torch.Tensor]:
+    """Noisy moduli of a noise-aware plan and its exposures, for the noise-aware decoder."""
+    plan = tm.plan_exposures(12, 8, noise="q16")
+    taus = torch.tensor(plan, dtype=torch.float64) / plan[-1]
+    radiance = _x() * 2.0**6 / float(taus[0])
+    return tm.sensors.SimulatedModuloSensor(8, "q16", seed=0)(radiance, taus).moduli, taus
+
+
 #: name -> (layer factory, inputs factory, exact): exact layers compute integers and match eager bit for bit; the
 #: tone maps match to float rounding (on the CPU the eager path runs in chunks with another operation order).
 CASES: dict[str, tuple[Callable[[], nn.Module], Callable[[], tuple[object, ...]], bool]] = {
@@ -55,6 +63,7 @@ CASES: dict[str, tuple[Callable[[], nn.Module], Callable[[], tuple[object, ...]]
         lambda: (_x(),),
         True,
     ),
+    "MultiExposureUnwrap-noise": (lambda: tm.MultiExposureUnwrap(bits=8, noise="q16"), lambda: _noisy(), False),
     "GammaToneMap": (lambda: tm.GammaToneMap(), lambda: (_x(),), False),
     "GammaToneMap-percentile-srgb": (
         lambda: tm.GammaToneMap(gamma=1.0, exposure=-1.5, percentile=99.0, srgb=True),
@@ -100,7 +109,13 @@ class TestFullGraph:
         _assert_same(out, layer(*args), exact)
 
     def test_no_graph_break(self) -> None:
-        for name in ("ModuloWrap", "MultiExposureCapture", "MultiExposureUnwrap", "LogToneMap"):
+        for name in (
+            "ModuloWrap",
+            "MultiExposureCapture",
+            "MultiExposureUnwrap",
+            "MultiExposureUnwrap-noise",
+            "LogToneMap",
+        ):
             make, inputs, _ = CASES[name]
             explained = torch._dynamo.explain(make())(*inputs())
             assert explained.graph_break_count == 0, (name, explained.break_reasons)
@@ -137,7 +152,8 @@ class TestFullGraph:
 
     @pytest.mark.slow
     def test_inductor(self) -> None:
-        for name in ("ModuloWrap", "ModuloCapture", "MultiExposureCapture", "chain", "GammaToneMap", "LogToneMap"):
+        names = ("ModuloWrap", "ModuloCapture", "MultiExposureCapture", "chain", "GammaToneMap", "LogToneMap")
+        for name in (*names, "MultiExposureUnwrap-noise"):
             make, inputs, exact = CASES[name]
             layer, args = make(), inputs()
             out = torch.compile(layer, fullgraph=True)(*args)

@@ -47,6 +47,9 @@ def stack_exposures(
 def sort_stack(stack: torch.Tensor, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Sort each batch item's exposures ascending, reordering frames only when needed."""
     tau_sorted, order = torch.sort(tau, dim=1, stable=True)
+    if torch.compiler.is_compiling():  # no data-dependent shortcut in a traced graph
+        index = order.view(*order.shape, 1, 1, 1).expand(-1, -1, *stack.shape[2:])
+        return torch.take_along_dim(stack, index, dim=1), tau_sorted
     identity = torch.arange(tau.shape[1], device=tau.device).expand_as(order)
     if torch.equal(order, identity):
         return stack, tau_sorted

@@ -197,17 +197,18 @@ def unwrap_multi(
     Without ``noise`` the rollover counts follow from each frame's predecessor (the robust rule, or Eq. 6 as
     printed with ``method="paper"``): exact on noise-free frames. With a ``noise`` model (the sensor's), each pixel's
     frames are decoded only while the noise model says the rollover count is determined, and the radiance is the
-    variance-weighted mean over the decoded frames (:mod:`torch_modulo.multishot.noisy`); exposures from
+    weighted least-squares fit to the decoded frames under the model, with the bias of the counter's clip at zero
+    corrected (:mod:`torch_modulo.multishot.noisy`); exposures from
     :func:`~torch_modulo.plan_exposures` with the same ``noise`` keep every pixel decodable, and exposure ratios
     that leave dark pixels undecodable draw a warning that says what to use instead.
 
     The noise-aware decoder works in a power-of-two unit of exposure near the middle of each item's exposures (which
-    rounds nothing), so exposures in any unit within float64's range decode. The noise-free work is vectorised over
-    batch, exposures' pixels and channels; on the CPU it runs over cache-sized chunks of pixels with float64
-    arithmetic in place, so the decisions are exact for counts up to ``2**53``. The result carries no gradient
-    (rollover counts are discrete). Under ``torch.compile`` the noise-free rules run as
-    whole-tensor operations with the same arithmetic, in one graph when :func:`torch_modulo.validation` is off;
-    the noise-aware decoder runs, but with graph breaks.
+    rounds nothing), so exposures in any unit within float64's range decode; it computes in float32 unless the
+    moduli are float64. The noise-free work is vectorised over batch, exposures' pixels and channels; on the CPU it
+    runs over cache-sized chunks of pixels with float64 arithmetic in place, so the decisions are exact for counts
+    up to ``2**53``. The result carries no gradient (rollover counts are discrete). Under ``torch.compile`` both
+    run as whole-tensor operations with the same arithmetic, in one graph (``fullgraph=True``): the value checks
+    and warnings are skipped while it traces.
 
     Args:
         moduli: modulus images, (B, M, C, H, W) or (M, C, H, W), floating, integers in ``[0, 2**bits)``.
@@ -228,8 +229,8 @@ def unwrap_multi(
     Returns:
         Radiance (or counts), (B, C, H, W) or (C, H, W), same dtype and device as ``moduli``; with
         ``return_variance=True`` a tuple ``(radiance, variance)``. Without noise the radiance is ``I / tau_max``
-        (Eq. 7's convention, the lower edge of the final cell); with noise it is the unbiased estimate
-        ``(I + 1/2) / tau`` per frame, less the dark counts. Counts above ``2**24`` are rounded in float32 (above 2048
+        (Eq. 7's convention, the lower edge of the final cell); with noise it is the fit of the model's expected
+        readings ``tau E + dark - 1/2 + clip bias`` to the decoded counts (at least 0). Counts above ``2**24`` are rounded in float32 (above 2048
         in float16, where they overflow past 65504), with a warning: use float64 for them.
 
     Raises:
@@ -273,7 +274,7 @@ def unwrap_multi(
         out = _count_traced(stack, tau, bits, method, return_counts)
         return out[0] if unbatched else out
     stack, tau = sort_stack(stack, tau)
-    ratios = neighbour_ratios(tau, bits)
+    ratios = neighbour_ratios(tau, bits) if validation_enabled() else tau[:, 1:] / tau[:, :-1]
     b, m = stack.shape[:2]
     pixel_shape = stack.shape[2:]
     n = math.prod(pixel_shape)
@@ -286,13 +287,16 @@ def unwrap_multi(
         out = out.view(b, *pixel_shape)
         return out[0] if unbatched else out
 
-    _check_dark_counts(tau, bits, noise, sigmas)
-    _warn_unsafe(tau, ratios, bits, noise, sigmas)
-    check_modulus(frames, bits, "moduli")
+    checking = validation_enabled()  # the checks and warnings below read values: off while torch.compile traces
+    if checking:
+        _check_dark_counts(tau, bits, noise, sigmas)
+        _warn_unsafe(tau, ratios, bits, noise, sigmas)
+        check_modulus(frames, bits, "moduli")
     radiance, variance, _ = decode_noisy(frames, tau, bits, noise, sigmas, return_counts)
-    _warn_overflow(radiance, moduli.dtype, "counts" if return_counts else "radiance")
-    if return_variance:
-        _warn_overflow(variance, moduli.dtype, "variance")
+    if checking:
+        _warn_overflow(radiance, moduli.dtype, "counts" if return_counts else "radiance")
+        if return_variance:
+            _warn_overflow(variance, moduli.dtype, "variance")
     radiance = radiance.to(moduli.dtype).view(b, *pixel_shape)
     variance = variance.to(moduli.dtype).view(b, *pixel_shape)
     if unbatched:
