@@ -6,6 +6,11 @@ For the multi-exposure capture and the multi-shot unwrap the data is the (B, M, 
 exposures), so their reference is the clone of that stack; every other operation is compared with the clone of its
 (B, C, H, W) input.
 
+The noise-aware rows decode (and simulate) the stack of a ``plan_exposures(16, bits, noise="q16")`` plan, 7 frames
+at 8 bits, for ``--noise-batch`` items (default 2) of the shape's (C, H, W): ``unwrap_multi noise`` decodes it with
+the noise model, ``simulate noise`` is the noisy ``SimulatedModuloSensor`` that captures it; both against the clone
+of that stack.
+
 The rows marked "compiled" time the layers under ``torch.compile(layer, fullgraph=True)`` (Inductor), which skips
 the value checks by itself; compilation happens in the warm-up call and is not timed. ``--no-compile`` skips them
 (compiling takes a while on a small CPU).
@@ -59,8 +64,32 @@ def bench(name: str, fn: Callable[[], object], reference: torch.Tensor, repeats:
     return {"op": name, "ms": 1e3 * op, "clone_ms": 1e3 * ref, "ratio": op / ref}
 
 
+def noisy_stack(radiance: torch.Tensor, bits: int, items: int) -> tuple[torch.Tensor, torch.Tensor, list[float]]:
+    """The radiance of ``items`` batch items scaled to the q16 plan for 16 stops (the radiance spans 16 stops), its
+    noisy moduli and the plan."""
+    plan = tm.plan_exposures(16, bits, noise="q16")
+    scene = radiance[:items] * (2.0**15 / plan[-1])  # 1 to 2**16 counts at the longest exposure
+    sensor = tm.sensors.SimulatedModuloSensor(bits, "q16", seed=0)
+    return scene, sensor(scene, plan).moduli, plan
+
+
+def noisy_rows(radiance: torch.Tensor, bits: int, items: int, repeats: int) -> list[dict[str, float | str]]:
+    scene, moduli, plan = noisy_stack(radiance, bits, items)
+    sensor = tm.sensors.SimulatedModuloSensor(bits, "q16", seed=0)
+    return [
+        bench("unwrap_multi noise", lambda: tm.unwrap_multi(moduli, plan, bits, noise="q16"), moduli, repeats),
+        bench("simulate noise", lambda: sensor(scene, plan), moduli, repeats),
+    ]
+
+
 def compiled_rows(
-    radiance: torch.Tensor, moduli: torch.Tensor, counts: torch.Tensor, taus: list[float], bits: int, repeats: int
+    radiance: torch.Tensor,
+    moduli: torch.Tensor,
+    counts: torch.Tensor,
+    taus: list[float],
+    bits: int,
+    repeats: int,
+    items: int,
 ) -> list[dict[str, float | str]]:
     """The layers under ``torch.compile(fullgraph=True)`` with validation off, each against the same clone."""
     device = radiance.device
@@ -76,6 +105,10 @@ def compiled_rows(
     for name, layer, data, reference in cases:
         fn = torch.compile(layer.to(device), fullgraph=True, dynamic=False)
         rows.append(bench(f"{name} compiled", lambda fn=fn, data=data: fn(data), reference, repeats))
+    _, noisy, plan = noisy_stack(radiance, bits, items)
+    exposures = torch.tensor(plan, dtype=torch.float64, device=device)
+    fn = torch.compile(tm.MultiExposureUnwrap(bits, noise="q16"), fullgraph=True, dynamic=False)
+    rows.append(bench("unwrap_multi noise compiled", lambda: fn(noisy, exposures), noisy, repeats))
     return rows
 
 
@@ -87,6 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=positive_int, default=7)
     parser.add_argument("--device", type=device_arg, default=torch.device("cpu"))
     parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
+    parser.add_argument("--noise-batch", type=positive_int, default=2, help="batch items of the noise-aware rows")
     parser.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     args = parser.parse_args(argv)
 
@@ -110,8 +144,9 @@ def main(argv: list[str] | None = None) -> None:
         ),
         bench("merge_intensity", lambda: tm.merge_intensity(frames, taus, args.bits), frames, args.repeats),
     ]
+    rows += noisy_rows(radiance, args.bits, args.noise_batch, args.repeats)
     if not args.no_compile:
-        rows += compiled_rows(radiance, moduli, counts, taus, args.bits, args.repeats)
+        rows += compiled_rows(radiance, moduli, counts, taus, args.bits, args.repeats, args.noise_batch)
     print(f"shape {tuple(args.shape)} {args.dtype} on {where}, {torch.get_num_threads()} threads, M = {len(taus)}")
     print(f"{'operation':<30}{'ms':>10}{'clone ms':>10}{'x clone':>9}")
     for row in rows:

@@ -15,7 +15,9 @@ noise, q = 16 with 16 e-):
   weights: the noise-optimal merge), for several R.
 
 Scores over the values whose true radiance is positive: median and 99th percentile of the relative error, and the
-share of values more than 50% off (gross); frames used. Prints a table and a JSON summary.
+share of values more than 50% off (gross); the median in each third of the scene's radiance (dark, mid, bright);
+frames used; for the modulo decoder, the share of values more than 3 of its reported standard deviations off
+(``return_variance``: 0.27% if it is calibrated and Gaussian). Prints a table and a JSON summary.
 
     python benchmarks/bench_noise.py                 # all dev scenes, both noise models
     python benchmarks/bench_noise.py --limit 3       # a quick look
@@ -41,16 +43,30 @@ from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, Simulated
 
 NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": NoiseModel(16.0, 16.0)}
 INTENSITY_RATIOS = (16.0, 4.0, 2.0, 1.25)
+BANDS = ("dark", "mid", "bright")
 
 
 def scores(estimate: torch.Tensor, truth: torch.Tensor) -> dict[str, float]:
     mask = truth > 0
-    rel = ((estimate[mask] - truth[mask]).abs() / truth[mask]).float()
-    return {
+    values = truth[mask]
+    rel = ((estimate[mask] - values).abs() / values).float()
+    out = {
         "median": float(rel.median()),
         "p99": float(torch.quantile(rel[:: max(1, rel.numel() // 4_000_000)], 0.99)),
         "gross": float((rel > 0.5).double().mean()),
     }
+    # The median in each third of the scene's radiance (dark, mid, bright), by rank.
+    order = torch.argsort(values)
+    for name, part in zip(BANDS, torch.tensor_split(order, 3), strict=True):
+        out[name] = float(rel[part].median()) if part.numel() else float("nan")
+    return out
+
+
+def calibration(estimate: torch.Tensor, variance: torch.Tensor, truth: torch.Tensor) -> float:
+    """The share of values more than 3 reported standard deviations off (0.27% for a calibrated Gaussian)."""
+    mask = truth > 0
+    off = (estimate[mask] - truth[mask]).abs() > 3.0 * variance[mask].sqrt()
+    return float(off.double().mean())
 
 
 def geometric(first: float, ratio: float) -> list[float]:
@@ -83,7 +99,7 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
     truth_counts = SimulatedIntensitySensor(53, noise, seed=seed)(batch, taus).frames
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        decoded = tm.unwrap_multi(moduli, taus, 8, noise=noise)
+        decoded, variance = tm.unwrap_multi(moduli, taus, 8, noise=noise, return_variance=True)
     seconds = time.perf_counter() - start
     row: dict[str, object] = {
         "scene": str(path.relative_to(args.scenes)),
@@ -91,7 +107,7 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
         "stops": stops,
         "frames": len(taus),
         "seconds": seconds,
-        "modulo": scores(decoded[0], radiance),
+        "modulo": {**scores(decoded[0], radiance), "beyond_3sd": calibration(decoded[0], variance[0], radiance)},
         "oracle": scores(truth_counts[0, -1] / taus[-1], radiance),
         "robust": scores(tm.unwrap_multi(moduli, taus, 8)[0], radiance),
         "blind": blind_scores(batch, radiance, stops, noise, seed),
@@ -109,9 +125,10 @@ def summarise(rows: list[dict[str, object]], noise_name: str) -> dict[str, objec
     keys = ["modulo", "oracle", "robust", "blind"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]
     out: dict[str, object] = {"scenes": len(part), "frames_modulo": statistics.mean(r["frames"] for r in part)}
     for key in keys:
-        out[key] = {s: statistics.mean(r[key][s] for r in part) for s in ("median", "p99", "gross")}
+        out[key] = {s: statistics.mean(r[key][s] for r in part) for s in ("median", "p99", "gross", *BANDS)}
         if key.startswith("intensity") or key == "blind":
             out[key]["frames"] = statistics.mean(r[key]["frames"] for r in part)
+    out["modulo"]["beyond_3sd"] = statistics.mean(r["modulo"]["beyond_3sd"] for r in part)
     return out
 
 
@@ -143,13 +160,17 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
     summary = {name: summarise(rows, name) for name in args.noise}
-    print("\n| noise | decoder | frames | median rel. error | p99 | gross (>50%) |")
-    print("|---|---|---|---|---|---|")
+    print("\n| noise | decoder | frames | median rel. error | p99 | gross (>50%) | median: dark / mid / bright |")
+    print("|---|---|---|---|---|---|---|")
     for name, s in summary.items():
         for key in ["modulo", "oracle", "robust", "blind"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]:
             frames = s["frames_modulo"] if key in ("modulo", "robust", "oracle") else s[key]["frames"]
             v = s[key]
-            print(f"| {name} | {key} | {frames:.1f} | {v['median']:.4f} | {v['p99']:.4f} | {v['gross']:.4%} |")
+            bands = " / ".join(f"{v[band]:.4f}" for band in BANDS)
+            print(
+                f"| {name} | {key} | {frames:.1f} | {v['median']:.4f} | {v['p99']:.4f} | {v['gross']:.4%} | {bands} |"
+            )
+        print(f"calibration ({name}): {s['modulo']['beyond_3sd']:.4%} of values more than 3 reported sd off")
     print(json.dumps(summary))
     if args.json:
         args.json.write_text(json.dumps({"rows": rows, "summary": summary}, indent=1))
