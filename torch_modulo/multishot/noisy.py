@@ -215,13 +215,13 @@ def _decode(
     ``exposures`` holds the M exposures ``t_i`` in the work unit, as numbers (one item) or (B, 1) tensors; ``t`` is
     the same as a (B, M) tensor, for the table lookups."""
     m = x.shape[1]
-    half = x + 0.5  # count + 1/2 of each frame, once its rollovers are added
-    used = torch.ones_like(half[:, 0])
+    counts = [x[:, 0] + 0.5]  # count + 1/2 of each frame, its rollovers added
+    used = torch.ones_like(counts[0])
     active = torch.ones_like(used)  # 1 while the pixel decodes the frame, then 0
     decoded = [active]
     t0 = exposures[0]
-    total = t0 * t0 / model.variance(half[:, 0])
-    weighted = total * half[:, 0] / t0
+    total = t0 * t0 / model.variance(counts[0])
+    weighted = total * counts[0] / t0
     for i in range(1, m):
         ti = exposures[i]
         inverse = 1.0 / total
@@ -229,11 +229,12 @@ def _decode(
         own = model.variance(expected)
         active = active * (own + inverse * (ti * ti) <= gate)
         decoded.append(active)
-        k = ((expected - half[:, i]) / period).round_().clamp_min_(0.0)
-        half[:, i] += k * period
+        half = x[:, i] + 0.5
+        k = ((expected - half) / period).round_().clamp_min_(0.0)
+        counts.append(half.add_(k.mul_(period)))
         weight = active * (ti * ti) / own  # the prediction's variance: independent of frame i
         total = total + weight
-        weighted = weighted + weight * half[:, i] / ti
+        weighted = weighted + weight * counts[i] / ti
         used = used + active
     # The least-squares fit with every used frame's weight t / Var(I) at one radiance, the clip-corrected running
     # estimate; then its clip bias corrected through the item's table.
@@ -244,7 +245,7 @@ def _decode(
         ti = exposures[i]
         slope = decoded[i] / (first * model.per_count + model.floor / ti)  # t / Var(I)
         norm = norm + slope * ti
-        raw = raw + slope * half[:, i]
+        raw = raw + slope * counts[i]
     return _unclip(raw / norm, used, t, table), 1.0 / norm, used
 
 
