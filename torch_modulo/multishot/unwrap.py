@@ -230,8 +230,9 @@ def unwrap_multi(
         Radiance (or counts), (B, C, H, W) or (C, H, W), same dtype and device as ``moduli``; with
         ``return_variance=True`` a tuple ``(radiance, variance)``. Without noise the radiance is ``I / tau_max``
         (Eq. 7's convention, the lower edge of the final cell); with noise it is the fit of the model's expected
-        readings ``tau E + dark - 1/2 + clip bias`` to the decoded counts (at least 0). Counts above ``2**24`` are rounded in float32 (above 2048
-        in float16, where they overflow past 65504), with a warning: use float64 for them.
+        readings ``tau E + dark - 1/2 + clip bias`` to the decoded counts (at least 0). Counts above ``2**24`` are
+        rounded in float32 (above 2048 in float16, where they overflow past 65504), with a warning: use float64 for
+        them.
 
     Raises:
         TypeError: ``moduli`` is not a floating tensor, ``exposures`` not numbers, ``noise`` not a NoiseModel.
