@@ -8,7 +8,7 @@ import torch
 from torch import nn
 
 from torch_modulo._checks import check_bits, check_choice, check_modulus
-from torch_modulo.multishot.noisy import exposure_unit, weighted_estimate
+from torch_modulo.multishot.noisy import exposure_unit
 from torch_modulo.multishot.stack import sort_stack, stack_exposures, wide_dtype
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -94,9 +94,34 @@ def _merge_noisy(stack: torch.Tensor, tau: torch.Tensor, top: float, noise: Nois
     # The common radiance for the variances: the longest unsaturated frame's (the shortest's if all saturate).
     last = (usable * torch.arange(1, x.shape[1] + 1, device=x.device).view(1, -1, 1, 1, 1)).amax(dim=1, keepdim=True)
     reference = torch.gather(estimates, 1, (last - 1).clamp_min(0))
-    merged, total = weighted_estimate(x, usable, t, reference, noise)
+    merged, total = _weighted_estimate(x, usable, t, reference, noise)
     merged = torch.where(total > 0, merged, estimates[:, 0])  # saturated everywhere: a lower bound
     return (merged * down.view(-1, 1, 1, 1) - noise.dark_counts).clamp_min(0.0)
+
+
+def _weighted_estimate(
+    counts: torch.Tensor, used: torch.Tensor, tau: torch.Tensor, reference: torch.Tensor, noise: NoiseModel
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The inverse-variance mean over the frames (dim 1) of their unbiased estimates ``(I + 1/2) / tau``.
+
+    Each used frame weighs ``tau^2 / Var(I)``, its variance from ``noise`` at the common radiance ``reference``
+    (so a frame's own noise does not set its weight).
+
+    Args:
+        counts: (B, M, ...) counts (values where ``used`` is False are ignored, NaN included).
+        used: which counts enter the mean, the shape of ``counts``.
+        tau: the exposures, broadcastable to ``counts``.
+        reference: the radiance the variances are evaluated at, broadcastable to ``counts``.
+        noise: the sensor's noise model.
+
+    Returns:
+        ``(mean, total)``: the mean radiance (dark counts included) and the total weight, (B, ...); the mean is 0
+        where no frame is used.
+    """
+    weight = torch.where(used, tau**2 / noise.count_variance(tau * reference), 0.0)
+    total = weight.sum(dim=1)
+    mean = (weight * torch.where(used, (counts + 0.5) / tau, 0.0)).sum(dim=1)
+    return mean / total.clamp_min(torch.finfo(total.dtype).tiny), total
 
 
 class IntensityMerge(nn.Module):

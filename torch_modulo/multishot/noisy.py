@@ -51,7 +51,7 @@ from torch_modulo._chunks import chunk_on_cpu, column_chunks
 from torch_modulo.multishot.stack import wide_dtype
 from torch_modulo.noise import NoiseModel
 
-__all__ = ["decode_noisy", "exposure_unit", "weighted_estimate", "work_dtype"]
+__all__ = ["decode_noisy", "exposure_unit", "work_dtype"]
 
 #: The clip-bias tables hold the correction in counts at the longest used frame for raw counts ``expm1(u)``, ``u``
 #: on ``_GRID`` points up to ``log1p(_TOP)``; above ``_TOP`` counts it is taken as constant (it tends to one: only
@@ -330,29 +330,3 @@ def _powers_of_two(exponent: torch.Tensor, dtype: torch.dtype) -> tuple[torch.Te
         return ((e + 1023) << 52).view(torch.float64), ((1023 - e) << 52).view(torch.float64)
     e = exponent.to(torch.int32).clamp(-126, 126)
     return ((e + 127) << 23).view(torch.float32), ((127 - e) << 23).view(torch.float32)
-
-
-def weighted_estimate(
-    counts: torch.Tensor, used: torch.Tensor, tau: torch.Tensor, reference: torch.Tensor, noise: NoiseModel
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The inverse-variance mean over the frames (dim 1) of their unbiased estimates ``(I + 1/2) / tau``.
-
-    Each used frame weighs ``tau^2 / Var(I)``, its variance from ``noise`` at the common radiance ``reference``
-    (so a frame's own noise does not set its weight). Shared by the noise-aware decoder and the noise-aware
-    intensity merge.
-
-    Args:
-        counts: (B, M, ...) counts (values where ``used`` is False are ignored, NaN included).
-        used: which counts enter the mean, the shape of ``counts``.
-        tau: the exposures, broadcastable to ``counts``.
-        reference: the radiance the variances are evaluated at, broadcastable to ``counts``.
-        noise: the sensor's noise model.
-
-    Returns:
-        ``(mean, total)``: the mean radiance (dark counts included) and the total weight, (B, ...); the mean is 0
-        where no frame is used.
-    """
-    weight = torch.where(used, tau**2 / noise.count_variance(tau * reference), 0.0)
-    total = weight.sum(dim=1)
-    mean = (weight * torch.where(used, (counts + 0.5) / tau, 0.0)).sum(dim=1)
-    return mean / total.clamp_min(torch.finfo(total.dtype).tiny), total
