@@ -35,9 +35,12 @@ CHUNK = CPU_CHUNK // 2
 
 
 def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
-    """Validate an HDR image and return it as (B, C, H, W) with its original shape.
+    """Validate an HDR image and return it as (B, C, H, W), in the default (contiguous) memory format, with its
+    original shape.
 
-    The value check (finite, non-negative) is skipped with :func:`torch_modulo.validation` off.
+    The operators compute in that one layout, so their values do not depend on how the caller's images are stored
+    (SIMD kernels round differently in another element order); :func:`restore` gives the result back in the input's
+    format. The value check (finite, non-negative) is skipped with :func:`torch_modulo.validation` off.
     """
     x = check_floating(hdr, name)
     check_image_shape(x, name, 2, 4)
@@ -47,6 +50,7 @@ def as_batch(hdr: object, name: str = "hdr") -> tuple[torch.Tensor, torch.Size]:
         x = x[None, None]
     elif x.dim() == 3:
         x = x[None]
+    x = x.contiguous()  # a copy only for channels-last input; see the docstring
     if x.shape[1] not in (1, 3):
         raise ValueError(
             f"{name} must have 1 (grey) or 3 (linear Rec.709 RGB) channels; got {x.shape[1]} in shape {tuple(shape)}"
