@@ -7,6 +7,8 @@
     torch-modulo unwrap IN OUT [--single] [--noise MODEL] [--cfa RGGB] [--no-demosaic]
                                                     frame stacks (or single modulus images) -> radiance EXRs
     torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs (frames, confidence maps skipped)
+    torch-modulo design --bits B --noise MODEL --stops S [--frames K] [--json] [--plot FILE]
+                                                    a modulo sensor's plan and error against a conventional one
 
 The per-file work lives in :mod:`torch_modulo.pipeline`, each folder command's inputs in
 :mod:`torch_modulo.folders`, the options' types and the jobs' options in :mod:`torch_modulo._cli_options`, and the
@@ -27,6 +29,7 @@ from typing import Any
 
 from torch_modulo._argtypes import nonnegative_int as _nonnegative_int
 from torch_modulo._argtypes import positive_int as _positive_int
+from torch_modulo._cli_design import add_design, run_design
 from torch_modulo._cli_options import (
     JOB_OPTIONS,
     bit_depth,
@@ -461,7 +464,7 @@ def _add_tonemap(commands: Any) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``torch-modulo`` parser: one subcommand per builder (demo, simulate, unwrap, tonemap)."""
+    """The ``torch-modulo`` parser: one subcommand per builder (demo, simulate, unwrap, tonemap, design)."""
     from torch_modulo import __version__
 
     parser = argparse.ArgumentParser(
@@ -470,7 +473,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in (_add_demo, _add_simulate, _add_unwrap, _add_tonemap):
+    for add in (_add_demo, _add_simulate, _add_unwrap, _add_tonemap, add_design):
         add(commands)
     return parser
 
@@ -609,7 +612,17 @@ def _run_demo(args: argparse.Namespace) -> int:
 
 
 #: Options whose value may start with a minus sign (``--exposures -1,16``: refused by name, not by argparse).
-_NUMERIC_OPTIONS = ("--exposures", "--exposure", "--scale", "--ratio", "--bits", "--seed", "--workers")
+_NUMERIC_OPTIONS = (
+    "--exposures",
+    "--exposure",
+    "--scale",
+    "--ratio",
+    "--bits",
+    "--seed",
+    "--workers",
+    "--stops",
+    "--frames",
+)
 
 
 def _values_attached(argv: Sequence[str]) -> list[str]:
@@ -637,6 +650,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(_values_attached(sys.argv[1:] if argv is None else argv))
     if args.command == "demo":
         return _run_demo(args)
+    if args.command == "design":
+        return run_design(args)
     return _run_folder_command(parser, args)
 
 

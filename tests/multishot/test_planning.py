@@ -204,3 +204,42 @@ class TestPlanExposuresExtremes:
             gross = 0.5 + 1e-3
             assert float((decoded > gross).double().mean()) <= float((oracle > gross).double().mean()) + 1e-3
             assert float(decoded.median()) <= 1.5 * float(oracle.median())
+
+
+class TestFrameBudget:
+    @pytest.mark.parametrize("preset", ["photon-counting", "q16", "dfpa"])
+    @pytest.mark.parametrize("frames", [3, 5, 8])
+    def test_plan_fits_the_budget_and_covers_the_scene(self, preset: str, frames: int) -> None:
+        default = tm.plan_exposures(16, 8, noise=preset, longest=1.0)
+        plan = tm.plan_exposures(16, 8, noise=preset, longest=1.0, frames=frames)
+        assert len(plan) <= frames and plan[-1] == pytest.approx(1.0)
+        # The same scene: the shortest exposure still holds the brightest value below the rollover.
+        assert plan[0] == pytest.approx(default[0], rel=1e-9)
+        if len(default) <= frames:  # a budget the default meets changes nothing but the tolerance
+            assert len(plan) >= len(default)
+
+    def test_larger_budgets_are_closer_to_the_oracle(self) -> None:
+        # Each budget's plan is the one of smallest tolerance that fits, so more frames never predict worse.
+        from torch_modulo.multishot.prediction import predict_modulo
+
+        medians = [
+            predict_modulo(
+                tm.plan_exposures(16, 8, noise="q16", longest=1.0, frames=k), 8, "q16", stops=16
+            ).median_error
+            for k in (3, 4, 6, 9)
+        ]
+        assert all(b <= a * 1.02 for a, b in zip(medians, medians[1:], strict=False)), medians
+
+    def test_a_budget_the_largest_ratios_cannot_meet_is_refused_with_the_count(self) -> None:
+        with pytest.raises(ValueError, match=r"frames=1 is too few: stops=16 .* needs \d+ exposures even with"):
+            tm.plan_exposures(16, 8, noise="q16", frames=1)
+        with pytest.raises(ValueError, match=r"frames=2 is too few: stops=24 at bits=8 needs 4 exposures"):
+            tm.plan_exposures(24, 8, frames=2)
+
+    def test_noise_free_budget_is_the_fewest_frame_plan(self) -> None:
+        assert tm.plan_exposures(24, 8, frames=5) == tm.plan_exposures(24, 8)
+
+    @pytest.mark.parametrize(("frames", "error"), [(0, ValueError), (2.5, TypeError), ("3", TypeError)])
+    def test_bad_budget_named(self, frames: object, error: type[Exception]) -> None:
+        with pytest.raises(error, match="frames"):
+            tm.plan_exposures(16, 8, noise="q16", frames=frames)  # type: ignore[arg-type]

@@ -15,6 +15,15 @@ moves down so that the last step is ``min_ratio`` (a shorter step decodes whatev
 that step is too short to give up the room, the last frame moves up to ``min_ratio`` times the one before (every
 pixel that needed it decodes that step, and the darkest read more than one count there).
 
+A budget of ``frames`` exposures: under noise, the plan is the one with the smallest ``tolerance`` (>= 1) whose plan
+has at most that many exposures, found by bisection on the tolerance (``min_ratio`` and ``max_ratio`` stay as given).
+A smaller tolerance only adds frames, each bringing the pixels that still need one closer to their oracle, so that
+plan is the nearest to every pixel's oracle the rule reaches within the budget; it has fewer frames than the budget
+where even ``tolerance=1`` needs fewer. Noise-free, every plan within ``max_ratio`` decodes exactly and the estimate
+is the longest frame's, so the plan is the fewest-frame one. Where even the largest ratios (an infinite tolerance)
+need more exposures than the budget, the planner says so and how many they need, rather than return a plan that
+does not cover the scene.
+
 Both plans hold at most 256 exposures. Under noise the planning runs in a power-of-two unit near ``base`` (which
 changes no rounding), so any base within float64's range plans.
 """
@@ -23,10 +32,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
+from typing import cast
 
 import torch
 
-from torch_modulo._checks import check_bits, check_real
+from torch_modulo._checks import check_bits, check_int, check_real
 from torch_modulo.noise import NoiseModel, as_noise_model
 
 __all__ = ["brightest_unwrapped", "dark_rollover_message", "plan_exposures", "safe_ratio", "unsafe_ratio_message"]
@@ -106,8 +117,10 @@ def _noisy_plan(
     tolerance: float,
     min_ratio: float,
     shown: NoiseModel,
-) -> list[float]:
-    """The noise-aware plan from ``base`` (see the module docstring); ``shown`` is the model the errors name."""
+    most: int | None = None,
+) -> list[float] | None:
+    """The noise-aware plan from ``base`` (see the module docstring); ``shown`` is the model the errors name. With
+    ``most``, None as soon as the plan would hold more than ``most`` exposures (the budget search's early exit)."""
     gate = _gate(bits, sigmas)
     first = brightest_unwrapped(bits, noise, sigmas, exposure=base)  # E_max's signal count at `base`
     longest = base * 2.0**stops / first  # E_min = 1 / longest reads one count there
@@ -127,6 +140,8 @@ def _noisy_plan(
     active = torch.ones_like(radiance, dtype=torch.bool)
     plan = [tau]
     while tau < longest * (1 - 1e-12):
+        if most is not None and len(plan) >= most:
+            return None
         if len(plan) >= _MAX_FRAMES:
             raise ValueError(
                 f"stops={stops:g} under {shown} needs more than {_MAX_FRAMES} exposures; raise tolerance (got "
@@ -163,8 +178,10 @@ def plan_exposures(
     sigmas: float = 3.0,
     tolerance: float = 1.2,
     min_ratio: float = 1.5,
+    frames: int | None = None,
 ) -> list[float]:
-    """The fewest exposures whose modulo captures decode a scene of ``stops`` stops reliably.
+    """The fewest exposures whose modulo captures decode a scene of ``stops`` stops reliably, or the best plan within
+    a budget of ``frames`` exposures.
 
     A scene spans ``E_max / E_min = 2**stops``, where ``E_min`` reads one count at the longest exposure and
     ``E_max`` must not roll over at the shortest exposure ``base``. Without noise, neighbouring ratios of up to
@@ -180,6 +197,9 @@ def plan_exposures(
     the shortest: the plan is then made with the base that ends it at ``longest``. Without dark current every plan
     is the ``base=1`` plan scaled, and ``longest`` gives exactly that plan times ``longest / plan[-1]``.
 
+    With ``frames=K`` the plan holds at most ``K`` exposures (see the module docstring for what it is): under noise
+    the one with the smallest tolerance that fits (``tolerance`` is then not used), noise-free the fewest-frame plan.
+
     Args:
         stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
         bits: the sensor's bit depth.
@@ -192,6 +212,7 @@ def plan_exposures(
         tolerance: with noise, how far above its oracle standard deviation a pixel may end (>= 1).
         min_ratio: with noise, the smallest ratio worth a frame (> 1): no neighbouring ratio of the plan is smaller
             (the last frame may then lie past the exposure where ``E_min`` reads one count).
+        frames: a budget of exposures (>= 1), or None for the fewest that meet ``tolerance``.
 
     Returns:
         Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
@@ -199,8 +220,9 @@ def plan_exposures(
     Raises:
         TypeError: an argument of the wrong type.
         ValueError: a value out of range, both ``base`` and ``longest``, a noise model that no exposure plan can
-            decode (also: dark counts at ``base`` that reach the rollover), a plan of more than 256 exposures, or
-            exposures beyond float64's range.
+            decode (also: dark counts at ``base`` that reach the rollover), a plan of more than 256 exposures,
+            exposures beyond float64's range, or ``frames`` fewer than even the largest ratios need (the message
+            says how many they need).
 
     Example:
         >>> plan_exposures(24, bits=8, max_ratio=256)     # the paper: three 8-bit captures cover 24 stops
@@ -215,6 +237,8 @@ def plan_exposures(
         >>> same = plan_exposures(16, bits=8, noise=dark, base=taus[0])  # the plan made at its own shortest exposure
         >>> taus[-1], len(same) == len(taus) and all(abs(a / b - 1) < 1e-9 for a, b in zip(taus, same))
         (1.0, True)
+        >>> len(plan_exposures(16, bits=8, noise="q16", frames=4))  # the best plan of at most four exposures
+        4
     """
     stops = check_real(stops, "stops", 0.0)
     bits = check_bits(bits, torch.float64)
@@ -223,6 +247,8 @@ def plan_exposures(
     base = 1.0 if base is None else check_real(base, "base", positive=True)
     if longest is not None:
         longest = check_real(longest, "longest", positive=True)
+    if frames is not None:
+        frames = check_int(frames, "frames", 1)
     if max_ratio is None:
         limit = 2.0**bits - 1 if bits > 1 else 2.0  # a 1-bit counter decodes integer ratios up to 2 exactly
     else:
@@ -256,8 +282,15 @@ def plan_exposures(
         # the dark current per unit exposure follows the unit.
         unit = 2.0 ** (math.frexp(base)[1] - 1)
         scaled = dataclasses.replace(model, dark_current=model.dark_current * unit) if model.dark_current else model
-        plan = _noisy_plan(stops, bits, base / unit, limit, scaled, sigmas, tolerance, min_ratio, model)
-        plan = [t * unit for t in plan]
+
+        def make(tol: float, most: int | None = None) -> list[float] | None:
+            found = _noisy_plan(stops, bits, base / unit, limit, scaled, sigmas, tol, min_ratio, model, most)
+            return None if found is None else [t * unit for t in found]
+
+        if frames is None:
+            plan = cast(list[float], make(tolerance))  # never None without a budget
+        else:
+            plan = _within_budget(make, frames, f"stops={stops:g} at bits={bits} under {model}", limit)
         if not math.isfinite(plan[-1]):
             raise ValueError(
                 f"stops={stops:g} from base={base:g} under {model} needs exposures beyond float64's range (about "
@@ -265,9 +298,44 @@ def plan_exposures(
             )
     else:
         plan = _noise_free_plan(stops, bits, base, limit)
+        if frames is not None and len(plan) > frames:
+            raise ValueError(
+                f"frames={frames} is too few: stops={stops:g} at bits={bits} needs {len(plan)} exposures even with "
+                f"ratios of max_ratio={limit:g}; allow {len(plan)} frames, raise max_ratio or plan fewer stops"
+            )
     if longest is None:
         return plan
     return [t * longest / plan[-1] for t in plan]
+
+
+def _within_budget(
+    make: Callable[[float, int | None], list[float] | None], frames: int, scene: str, limit: float
+) -> list[float]:
+    """``make(tolerance, most)`` at the smallest tolerance >= 1 whose plan holds at most ``frames`` exposures, by
+    bisection on ``log2(tolerance)`` (an infinite tolerance takes the largest ratios: the fewest frames)."""
+    frames = min(frames, _MAX_FRAMES)
+    plan = make(1.0, frames)
+    if plan is not None:
+        return plan
+    fewest = make(math.inf, frames)
+    if fewest is None:
+        need = len(make(math.inf, None) or [])
+        raise ValueError(
+            f"frames={frames} is too few: {scene} needs {need} exposures even with ratios of max_ratio={limit:g}; "
+            f"allow {need} frames, raise max_ratio or plan fewer stops"
+        )
+    low, high = 0.0, 64.0  # log2 of the tolerance: too many frames at `low`; at `high` (unless None) within budget
+    best = make(2.0**high, frames)
+    if best is None:
+        return fewest
+    for _ in range(40):
+        mid = 0.5 * (low + high)
+        found = make(2.0**mid, frames)
+        if found is None:
+            low = mid
+        else:
+            high, best = mid, found
+    return best
 
 
 def _noise_free_plan(stops: float, bits: int, base: float, limit: float) -> list[float]:
