@@ -3,7 +3,8 @@
 It checks the input, turns a batch into planes, has them solved by the method of the registry
 (:data:`~torch_modulo.singleshot.methods.REGISTRY`: on the input's device for the methods with a tensor solver,
 else in worker processes, :mod:`torch_modulo.singleshot.workers`) and assembles the restored counts and a
-:class:`SingleShotInfo`. A mosaic (``cfa=``) is interpolated on the circle first and solved as one colour image.
+:class:`SingleShotInfo`. A mosaic (``cfa=``) is interpolated on the circle first and solved as one colour image (or,
+with ``"learned"``'s ``cells``, solved as two half-resolution colour images of its photosites).
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ from torch_modulo._checks import (
     check_tensor,
     like_memory_format,
 )
-from torch_modulo.cfa import check_cfa, interpolate_wrapped, mosaic
-from torch_modulo.singleshot.learned.solver import mosaic_spec
+from torch_modulo.cfa import cfa_colours, check_cfa, interpolate_wrapped, merge_planes, mosaic, split_planes
+from torch_modulo.singleshot.learned.solver import mosaic_spec, solves_cells
 from torch_modulo.singleshot.methods import REGISTRY, make_spec, solve_on_device
 from torch_modulo.singleshot.spec import SolverSpec
 from torch_modulo.singleshot.workers import check_workers, run_planes
@@ -143,7 +144,8 @@ def _solve_mosaic(
     modulus: torch.Tensor, spec: SolverSpec, workers: int | None, cfa: str
 ) -> tuple[torch.Tensor, SingleShotInfo]:
     """Unwrap a mosaic of the colour filter array ``cfa``: its wrapped RGB interpolated on the circle, solved at full
-    resolution as one colour image, then the photosites' own rollover counts."""
+    resolution as one colour image, then the photosites' own rollover counts; or, with ``"learned"``'s ``cells``,
+    its photosites as two half-resolution colour images (:func:`_solve_cells`)."""
     check_cfa(cfa)
     check_floating(modulus, "modulus")
     check_image_shape(modulus, "modulus", 2, 4)
@@ -152,11 +154,38 @@ def _solve_mosaic(
         raise ValueError(
             f"modulus must be a mosaic with cfa={cfa!r}, (B, 1, H, W), (1, H, W) or (H, W); got {tuple(modulus.shape)}"
         )
+    if solves_cells(spec):
+        return _solve_cells(modulus, spec, workers, cfa)
     guide = interpolate_wrapped(modulus if modulus.dim() > 2 else modulus[None], cfa, spec.params.bits)
     out, info = _solve(guide, mosaic_spec(spec), workers)
     if info.confidence is not None:
         info.confidence = mosaic(info.confidence, cfa).reshape(modulus.shape)
     return mosaic(out, cfa).reshape(modulus.shape), info
+
+
+def _solve_cells(
+    modulus: torch.Tensor, spec: SolverSpec, workers: int | None, cfa: str
+) -> tuple[torch.Tensor, SingleShotInfo]:
+    """A mosaic's photosites as two half-resolution colour images, (R, G1, B) and (R, G2, B) of every 2 x 2 cell
+    (:func:`~torch_modulo.cfa.split_planes`), each solved as one colour image: no interpolated value is solved.
+
+    The first image gives the red, blue and first green photosites, the second the other green ones; the info is the
+    first image's (one entry per colour), its confidence that of each photosite's own plane.
+    """
+    h, w = modulus.shape[-2:]
+    planes = split_planes(modulus.reshape(-1, 1, h, w))  # refuses odd sides, naming them
+    colours = cfa_colours(cfa)
+    r, b = colours.index(0), colours.index(2)
+    g1, g2 = (i for i, c in enumerate(colours) if c == 1)
+    first, info = _solve(planes[:, [r, g1, b]], spec, workers)
+    second, info2 = _solve(planes[:, [r, g2, b]], spec, workers)
+    order = [r, g1, b, g2]
+    out = torch.cat([first, second[:, 1:2]], dim=1)[:, [order.index(i) for i in range(4)]]
+    if info.confidence is not None and info2.confidence is not None:
+        conf = torch.cat([info.confidence, info2.confidence[:, 1:2]], dim=1)[:, [order.index(i) for i in range(4)]]
+        info.confidence = merge_planes(conf).reshape(modulus.shape)
+    info.seconds = info.seconds + info2.seconds
+    return like_memory_format(merge_planes(out).reshape(modulus.shape), modulus), info
 
 
 @overload
@@ -273,7 +302,9 @@ def unwrap_single(
             RGB image is unwrapped (the methods that solve channels together share one tree across the colours),
             and the restored mosaic keeps each photosite's own count; the info has one entry per colour (C = 3).
             ``"learned"`` then runs 4 min-cut moves after its tree and no level moves unless ``max_cuts`` or
-            ``levels`` is given (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`).
+            ``levels`` is given (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`); with ``cells=True`` it
+            instead solves the photosites as two half-resolution colour images, the red, first green and blue
+            photosites of every 2 x 2 cell and the red, second green and blue ones (nothing interpolated).
             Demosaic the restored counts (:func:`torch_modulo.cfa.demosaic`), never the modulus.
         **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
             ``"auto"``), ``rel_tol`` (default 3e-4), ``window`` (default 64: the side of the windows of the
@@ -288,12 +319,13 @@ def unwrap_single(
             ``"learned"``: ``weights`` (default None: the weights shipped in the package; or a weights file),
             ``levels`` (default True: a small head's level costs move whole regions after the tree,
             :func:`~torch_modulo.singleshot.learned.region_moves`; a path: a level weights file; False: no level
-            moves, faster; docs/singleshot.md has the numbers), ``max_cuts`` (default 0, 4 on a mosaic: the most
-            likely tree alone; more: binary moves weighing every pair's probability after it, before the level
+            moves, faster; docs/singleshot.md has the numbers), ``max_cuts`` (default 0, 4 on a mosaic: the
+            most likely tree alone; more: binary moves weighing every pair's probability after it, before the level
             moves),
             ``augment`` (default False: True averages the network over the image's four flips), ``tile`` (default
             768: the network and its level head predict tiles of that side with their context, which bounds
-            memory; 0: the whole image). ``"lsq"``:
+            memory; 0: the whole image), ``threads`` (default 1: the torch threads the networks run on on the CPU;
+            0: all of torch's), ``cells`` (default False; see ``cfa``). ``"lsq"``:
             ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),
             ``cg_iterations`` (default 10: conjugate-gradient steps per round), ``colour`` (default True: the
             channels of an image share their weights; False: each channel alone).

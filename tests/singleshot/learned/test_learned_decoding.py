@@ -10,7 +10,7 @@ import pytest
 import torch
 from learned_helpers import oracle_logp, scene, spec  # tests/singleshot/learned/
 
-from torch_modulo.cfa import mosaic
+from torch_modulo.cfa import merge_planes, mosaic, split_planes
 from torch_modulo.singleshot import unwrap_single
 from torch_modulo.singleshot.learned import (
     MAX_COST,
@@ -101,6 +101,23 @@ class TestDecoders:
         out = unwrap_single(m, cfa="GRBG")
         assert torch.equal(out, unwrap_single(m, cfa="GRBG", max_cuts=MOSAIC_CUTS, levels=False))
         assert torch.equal(torch.remainder(out, 256), m)
+
+    @pytest.mark.parametrize("cfa", ["RGGB", "GRBG"])
+    def test_mosaic_cells_are_two_half_resolution_colour_images(self, cfa: str) -> None:
+        rgb = torch.from_numpy(np.stack([scene(32, s) for s in range(3)])).float()
+        m = mosaic(rgb, cfa) % 256
+        out, info = unwrap_single(m, cfa=cfa, return_info=True, cells=True)
+        assert torch.equal(torch.remainder(out, 256), m) and info.iterations.shape == (1, 3)
+        assert info.confidence is not None and info.confidence.shape == m.shape
+        planes = split_planes(m[None])[0]  # photosites (0, 0), (0, 1), (1, 0), (1, 1)
+        r, g1, g2, b = {"RGGB": (0, 1, 2, 3), "GRBG": (1, 0, 3, 2)}[cfa]
+        first, second = unwrap_single(planes[[r, g1, b]]), unwrap_single(planes[[r, g2, b]])
+        expected = torch.empty_like(planes)
+        expected[r], expected[g1], expected[b], expected[g2] = first[0], first[1], first[2], second[1]
+        assert torch.equal(out, merge_planes(expected[None])[0])
+        assert torch.equal(unwrap_single(m[0], cfa=cfa, cells=True), out[0])  # (H, W) as (1, H, W)
+        with pytest.raises(ValueError, match="even"):
+            unwrap_single(m[:, :31], cfa=cfa, cells=True)
 
     @pytest.mark.parametrize("levels", [False, True])
     def test_channels_decoded_side_by_side_as_one_by_one(self, levels: bool, monkeypatch: pytest.MonkeyPatch) -> None:

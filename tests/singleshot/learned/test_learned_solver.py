@@ -72,3 +72,36 @@ class TestThinImages:
             learned_k(moduli[:, :side], 8, levels=True)
             learned_k(moduli[:, :, :side], 8, levels=True)
         assert calls == [(MIN_LEVEL_SIDE, 16), (16, MIN_LEVEL_SIDE)]
+
+
+class TestNetworkThreads:
+    """The networks run on ``threads`` torch threads on the CPU (option ``threads``); the result does not depend on
+    it, and torch's own thread count comes back after the call."""
+
+    def test_threads_change_no_result_and_are_given_back(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        truth = np.stack([scene(40, s) for s in range(3)])
+        modulus = torch.from_numpy(truth % 256)
+        torch.set_num_threads(2)  # the one_thread fixture gives the original back
+        seen = []
+        real = solver.predict_jumps
+        monkeypatch.setattr(
+            solver, "predict_jumps", lambda *a, **kw: seen.append(torch.get_num_threads()) or real(*a, **kw)
+        )
+        one = unwrap_single(modulus, method="learned", threads=1)
+        assert torch.get_num_threads() == 2
+        every = unwrap_single(modulus, method="learned", threads=0)
+        assert torch.equal(one, every) and seen == [1, 2]
+        assert solver.LEARNED_OPTIONS["threads"][0] == solver.NETWORK_THREADS == 1
+
+    def test_threads_restored_when_the_network_raises(self) -> None:
+        torch.set_num_threads(2)
+        with pytest.raises(RuntimeError, match="boom"), solver.network_threads(1):
+            assert torch.get_num_threads() == 1
+            raise RuntimeError("boom")
+        assert torch.get_num_threads() == 2
+        with solver.network_threads(0):
+            assert torch.get_num_threads() == 2
+
+    def test_threads_refused(self) -> None:
+        with pytest.raises(ValueError, match="threads"):
+            unwrap_single(torch.zeros(8, 8), method="learned", threads=-1)

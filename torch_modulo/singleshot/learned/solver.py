@@ -9,6 +9,7 @@ moves (:func:`~torch_modulo.singleshot.learned.region_moves`, option ``levels``)
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 from collections.abc import Callable
@@ -32,13 +33,16 @@ __all__ = [
     "LEARNED_OPTIONS",
     "MIN_LEVEL_SIDE",
     "MOSAIC_CUTS",
+    "NETWORK_THREADS",
     "check_levels",
     "check_tile",
     "check_weights",
     "learned_k",
     "mosaic_spec",
+    "network_threads",
     "solve_learned",
     "solve_learned_tensor",
+    "solves_cells",
 ]
 
 #: The default ``max_cuts`` of a mosaic's guide (``unwrap_single(..., cfa=...)``, :func:`mosaic_spec`): its
@@ -49,6 +53,10 @@ MOSAIC_CUTS = 4
 #: crops of natural images), and on thinner planes its costs mislead (a one-row ramp came back with whole stretches
 #: a period low); the tree, and the cuts when asked for, decode them.
 MIN_LEVEL_SIDE = 8
+
+#: The default ``threads`` of ``method="learned"``: the torch threads its networks run on on the CPU
+#: (:func:`network_threads`). One: on shared cores more threads cost more than they gain (docs/singleshot.md).
+NETWORK_THREADS = 1
 
 #: With ``max_cuts`` or ``levels``, the costs of the jumps within ``BAND`` of each pair's most likely one are kept for
 #: the cuts and the level moves (farther jumps cost :data:`~torch_modulo.singleshot.learned.MAX_COST`):
@@ -72,6 +80,7 @@ def learned_k(
     augment: bool = False,
     tile: int = TILE,
     levels: LevelNet | bool | str | Path | None = None,
+    threads: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``k`` and the confidence of one image's channels (C, H, W), up to one constant per channel.
 
@@ -82,7 +91,8 @@ def learned_k(
     float16 costs per 2 x 2 block, level and channel are kept while the image is decoded; planes with a side shorter
     than :data:`MIN_LEVEL_SIDE` get none). With either, the costs of
     the jumps within :data:`BAND` of each pair's most likely one are kept (``2 (2 BAND + 1)`` floats per pixel and
-    channel). The confidence is that of the tree. The channels are decoded side by side on torch's threads.
+    channel). The confidence is that of the tree. The channels are decoded side by side on torch's threads. On the
+    CPU the network runs on ``threads`` of torch's threads (0: all of them; :func:`network_threads`).
 
     Example:
         >>> ramp = np.arange(0, 1200, 40).reshape(1, 1, -1).repeat(8, axis=1)
@@ -103,13 +113,14 @@ def learned_k(
         level_net = None
     band = BAND if max_cuts or level_net is not None else 0
     x_net = x.to(device=device, dtype=torch.float32)
-    if level_net is not None and not augment and _same_network(level_net.trunk, net):  # one run of the encoder
-        jump, cost, u = predict_jumps(net, x_net, bits, augment, tile, band, level_net)
-    else:
-        jump, cost = predict_jumps(net, x_net, bits, augment, tile, band)
-        if level_net is not None:
-            level_device = next(level_net.parameters()).device
-            u = predict_levels(level_net, x.to(device=level_device, dtype=torch.float32), bits, tile)
+    with network_threads(threads if device.type == "cpu" else 0):
+        if level_net is not None and not augment and _same_network(level_net.trunk, net):  # one run of the encoder
+            jump, cost, u = predict_jumps(net, x_net, bits, augment, tile, band, level_net)
+        else:
+            jump, cost = predict_jumps(net, x_net, bits, augment, tile, band)
+            if level_net is not None:
+                level_device = next(level_net.parameters()).device
+                u = predict_levels(level_net, x.to(device=level_device, dtype=torch.float32), bits, tile)
 
     def decode(i: int) -> None:  # one channel, from its int64 moduli
         plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
@@ -128,6 +139,27 @@ def learned_k(
         for i in range(x.shape[0]):
             decode(i)
     return k, confidence
+
+
+@contextlib.contextmanager
+def network_threads(threads: int):
+    """Run the block on ``threads`` of torch's intra-op threads (at most as many as torch has; 0: unchanged), and
+    give torch its own number back after it.
+
+    The networks' convolutions are small (16 to 64 channels): each splits its work among the threads and waits for
+    the slowest at the end. On a machine whose cores other jobs share, a thread that loses its core stalls every
+    convolution, and on 2 shared cores 2 threads took 4 to 5 times as long as one (docs/singleshot.md, "Speed").
+    torch's thread count is per process: other threads that run torch meanwhile get the same number.
+    """
+    before = torch.get_num_threads()
+    if threads <= 0 or threads >= before:
+        yield
+        return
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _same_network(a: nn.Module, b: nn.Module) -> bool:
@@ -192,19 +224,28 @@ def _check_cuts(value: object, name: str) -> int:
     return check_int(value, name, 0)
 
 
+def _check_threads(value: object, name: str) -> int:
+    return check_int(value, name, 0)
+
+
 #: The options of ``method="learned"``: name -> (default, check). ``weights``: ``None`` (the shipped weights) or
 #: a weights file; ``levels``: move the tree's regions by learned level costs
 #: (:func:`~torch_modulo.singleshot.learned.region_moves`; ``True``: the shipped level weights, a path: a level
 #: weights file, ``False``: no level moves); ``max_cuts``: the most binary moves of
 #: :func:`~torch_modulo.singleshot.learned.refine_band` after the tree (0: none); ``augment``: average the network's
 #: output over the four flips of the image; ``tile``: the side of the tiles the network predicts at once
-#: (:data:`~torch_modulo.singleshot.learned.TILE`; 0: the whole image).
+#: (:data:`~torch_modulo.singleshot.learned.TILE`; 0: the whole image); ``threads``: the torch threads the networks
+#: run on on the CPU (default :data:`NETWORK_THREADS`; 0: all of torch's, :func:`network_threads`); ``cells``: a
+#: mosaic's photosites are solved as two half-resolution colour images (:func:`solves_cells`; default False: its
+#: interpolated guide, with :func:`mosaic_spec`'s options).
 LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
     "weights": (None, check_weights),
     "levels": (True, check_levels),
     "max_cuts": (0, _check_cuts),
     "augment": (False, check_flag),
     "tile": (TILE, check_tile),
+    "threads": (NETWORK_THREADS, _check_threads),
+    "cells": (False, check_flag),
 }
 
 
@@ -220,13 +261,25 @@ def mosaic_spec(spec: SolverSpec) -> SolverSpec:
     return dataclasses.replace(spec, options=tuple(sorted(options.items())))
 
 
+def solves_cells(spec: SolverSpec) -> bool:
+    """Whether ``spec`` solves a mosaic (``unwrap_single(..., cfa=...)``) as two half-resolution colour images of its
+    photosites (``"learned"`` with ``cells=True``) rather than as its wrapped colours interpolated to full resolution
+    (the default, and every other method).
+
+    On the dev scenes mosaicked RGGB the cells were better on average and 5 times faster, but put other scenes a
+    period off where the guide did not (docs/singleshot.md, "Mosaics").
+    """
+    return spec.method == "learned" and bool(spec.option("cells"))
+
+
 def _learned_ks(moduli: np.ndarray | torch.Tensor, spec: SolverSpec) -> tuple[np.ndarray, np.ndarray]:
     """``k`` (not anchored) and the confidence of one image's channels under ``spec``'s options, the network on the
     moduli's device."""
     device = moduli.device if isinstance(moduli, torch.Tensor) else torch.device("cpu")
     net = load_model(spec.option("weights"), device=device)
     options = (int(spec.option("max_cuts")), spec.option("augment"), int(spec.option("tile")))
-    return learned_k(moduli, spec.params.bits, net, *options, levels=spec.option("levels"))
+    threads = int(spec.option("threads"))
+    return learned_k(moduli, spec.params.bits, net, *options, levels=spec.option("levels"), threads=threads)
 
 
 def solve_learned(moduli: np.ndarray, spec: SolverSpec, stats: list[MoveStats]) -> np.ndarray:
