@@ -148,8 +148,9 @@ def network_threads(threads: int):
 
     The networks' convolutions are small (16 to 64 channels): each splits its work among the threads and waits for
     the slowest at the end. On a machine whose cores other jobs share, a thread that loses its core stalls every
-    convolution, and on 2 shared cores 2 threads took 4 to 5 times as long as one (docs/singleshot.md, "Speed").
-    torch's thread count is per process: other threads that run torch meanwhile get the same number.
+    convolution, and on 2 shared cores 2 threads took 4 to 5 times as long as one (docs/singleshot.md, "Worst scenes
+    and speed"); on a quiet machine with many cores, 0 (all of torch's threads) is faster. torch's thread count is
+    per process: other threads that run torch meanwhile get the same number.
     """
     before = torch.get_num_threads()
     if threads <= 0 or threads >= before:
@@ -266,8 +267,9 @@ def solves_cells(spec: SolverSpec) -> bool:
     photosites (``"learned"`` with ``cells=True``) rather than as its wrapped colours interpolated to full resolution
     (the default, and every other method).
 
-    On the dev scenes mosaicked RGGB the cells were better on average and 5 times faster, but put other scenes a
-    period off where the guide did not (docs/singleshot.md, "Mosaics").
+    On the dev scenes mosaicked RGGB the cells were better on average and 3 times faster, but put other scenes a
+    period off where the guide did not, and were worse on the validation scenes (docs/singleshot.md, "Worst scenes
+    and speed").
     """
     return spec.method == "learned" and bool(spec.option("cells"))
 
