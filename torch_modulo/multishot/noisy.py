@@ -35,8 +35,14 @@ about a count. The solution depends on the raw weighted mean of ``(I + 1/2) / ta
 used only, so it is solved by Newton's method once per batch item on a grid of raw means (:func:`_item_table`) and
 read off by linear interpolation per pixel.
 
+With spatial evidence (``shape`` given: the default of :func:`~torch_modulo.unwrap_multi`) each prediction is the
+mean of the estimates of the pixel and its agreeing neighbours (:mod:`~torch_modulo.multishot.spatial`), and the
+prediction's spread and the whole spread are gated separately (:func:`~torch_modulo.multishot.spatial.gates`); the
+fit that follows is each pixel's own.
+
 The work runs in float32 unless the moduli are float64 (:func:`work_dtype`). On the CPU it runs item by item over
-chunks of pixels; under ``torch.compile`` (and on other devices) the same arithmetic runs on the whole stack.
+chunks of pixels (of whole image planes with spatial evidence); under ``torch.compile`` (and on other devices) the
+same arithmetic runs on the whole stack.
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ from dataclasses import dataclass
 import torch
 
 from torch_modulo._chunks import chunk_on_cpu, column_chunks
+from torch_modulo.multishot.spatial import gates, neighbour_prediction
 from torch_modulo.multishot.stack import wide_dtype
 from torch_modulo.noise import NoiseModel
 
@@ -148,6 +155,7 @@ def decode_noisy(
     noise: NoiseModel,
     sigmas: float = 3.0,
     return_counts: bool = False,
+    shape: tuple[int, int] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Decode a sorted exposure stack under ``noise``.
 
@@ -163,6 +171,8 @@ def decode_noisy(
         sigmas: ``z``, the gate on the predicted count's standard deviation in units of ``2**bits / 2``.
         return_counts: return the expected count at the longest exposure, ``tau_max E``, and its variance, instead
             of the radiance ``E``.
+        shape: ``(H, W)``: the ``n`` pixels are whole (H, W) image planes, and each prediction uses the agreeing
+            neighbours in its plane (module docstring); None decodes every pixel alone.
 
     Returns:
         ``(radiance, variance, used)``, each (B, n): the radiance estimate (counts per unit exposure, >= 0; or the
@@ -177,7 +187,17 @@ def decode_noisy(
     model = _Counts.of(noise)
     table = _clip_table(t, dark, model)
     b, m, n = frames.shape
-    args = (float(2**bits), (2**bits / (2.0 * sigmas)) ** 2, model)
+    args: tuple[float, float, float, _Counts, tuple[int, int] | None]
+    if shape is None:
+        gate = (2**bits / (2.0 * sigmas)) ** 2
+        args = (float(2**bits), gate, gate, model, None)
+        width = _CHUNK
+    else:
+        plane = shape[0] * shape[1]
+        if plane == 0 or n % plane:
+            raise ValueError(f"shape={shape} does not divide the {n} pixels of each frame into whole image planes")
+        args = (float(2**bits), *gates(bits, sigmas), model, shape)
+        width = plane * max(1, _CHUNK // plane)  # whole planes: a pixel's neighbours are in its chunk
     if chunk_on_cpu(frames) and not torch.compiler.is_compiling() and n:
         radiance = torch.empty((b, n), dtype=work)
         variance, used = torch.empty_like(radiance), torch.empty_like(radiance)
@@ -186,7 +206,7 @@ def decode_noisy(
         for item in range(b):
             rows = slice(item, item + 1)
             exposures = t[item].tolist()
-            for cols in column_chunks(n, 1, chunk=_CHUNK, min_width=_CHUNK):
+            for cols in column_chunks(n, 1, chunk=width, min_width=width):
                 out = _decode(frames[rows, :, cols].to(work), exposures, t[rows], dark[rows], table[rows], *args)
                 radiance[rows, cols], variance[rows, cols], used[rows, cols] = out
     else:
@@ -207,13 +227,17 @@ def _decode(
     table: torch.Tensor,
     period: float,
     gate: float,
+    whole: float,
     model: _Counts,
+    shape: tuple[int, int] | None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Decode (B, M, w) moduli: the estimate of ``E + dark`` in the work unit (>= ``dark``), its variance and the
     frames used, each (B, w).
 
     ``exposures`` holds the M exposures ``t_i`` in the work unit, as numbers (one item) or (B, 1) tensors; ``t`` is
-    the same as a (B, M) tensor, for the table lookups."""
+    the same as a (B, M) tensor, for the table lookups. Without ``shape`` a frame is decoded while the predicted
+    count's variance is within ``gate``; with it (whole (H, W) planes) the prediction is the neighbours' and its
+    variance must be within ``gate``, the whole variance within ``whole``."""
     m = x.shape[1]
     counts = [x[:, 0] + 0.5]  # count + 1/2 of each frame, its rollovers added
     used = torch.ones_like(counts[0])
@@ -225,9 +249,16 @@ def _decode(
     for i in range(1, m):
         ti = exposures[i]
         inverse = 1.0 / total
-        expected = weighted * inverse * ti  # the predicted count + 1/2
-        own = model.variance(expected)
-        active = active * (own + inverse * (ti * ti) <= gate)
+        if shape is None:
+            expected = weighted * inverse * ti  # the predicted count + 1/2
+            own = model.variance(expected)
+            active = active * (own + inverse * (ti * ti) <= gate)
+        else:
+            guess, spread = neighbour_prediction(weighted * inverse, inverse, shape)
+            expected = guess * ti
+            own = model.variance(expected)
+            spread = spread * (ti * ti)
+            active = active * (spread <= gate) * (own + spread <= whole)
         decoded.append(active)
         half = x[:, i] + 0.5
         k = ((expected - half) / period).round_().clamp_min_(0.0)

@@ -38,6 +38,7 @@ from typing import cast
 import torch
 
 from torch_modulo._checks import check_bits, check_int, check_real
+from torch_modulo.multishot.spatial import PLANNED_SHRINK, WHOLE_SHARE, gates
 from torch_modulo.noise import NoiseModel, as_noise_model
 
 __all__ = ["brightest_unwrapped", "dark_rollover_message", "plan_exposures", "safe_ratio", "unsafe_ratio_message"]
@@ -107,6 +108,70 @@ def _largest_ratio(
     return (-b + torch.sqrt(b * b - 4 * a * c)) / (2 * a)
 
 
+#: How much worse, in relative error, a spatial plan may leave a pixel at its physical limit than the per-pixel plan
+#: (see :func:`_spatial_min_ratio`).
+_LIMIT_SLACK = 1.1
+
+
+def _spatial_ratio(
+    tau: torch.Tensor, radiance: torch.Tensor, variance: torch.Tensor, noise: NoiseModel, bits: int, sigmas: float
+) -> torch.Tensor:
+    """Per radiance, the largest ratio whose next frame the decoder with spatial evidence decodes: the prediction's
+    variance, ``Var / PLANNED_SHRINK`` at the next exposure, and the whole variance within the two gates of
+    :func:`~torch_modulo.multishot.spatial.gates`."""
+    gate, whole = gates(bits, sigmas)
+    shrunk = variance / PLANNED_SHRINK
+    return torch.minimum(torch.sqrt(gate / (tau**2 * shrunk)), _largest_ratio(tau, radiance, shrunk, noise, whole))
+
+
+def _limit_error(ratio: float, count: float) -> float:
+    """The mean of ``1 / sqrt(counts)`` of a pixel at its physical limit (shot noise), the counts summed over its
+    decoded frames, on a geometric plan of ``ratio`` whose frames it decodes up to ``count``: its last frame reads
+    ``count ratio^-u`` with ``u`` uniform in [0, 1] (where it falls between two frames), the earlier ones add
+    ``1 / (ratio - 1)`` of that."""
+    root = math.sqrt(ratio)
+    return math.sqrt((ratio - 1.0) / ratio) * (root - 1.0) / (0.5 * math.log(ratio)) / math.sqrt(count)
+
+
+def _spatial_min_ratio(min_ratio: float, limit: float) -> float:
+    """The smallest ratio worth a frame of a spatial plan, for the per-pixel plan's ``min_ratio``.
+
+    On a geometric plan of ratio ``r`` the prediction of a frame's count ``c`` has variance about ``(r - 1) c`` (the
+    earlier frames hold ``c / (r - 1)`` counts), so a pixel alone decodes frames up to the count ``g / r`` where
+    its whole variance ``r c`` meets the gate ``g``, and with spatial evidence up to ``w / (1 + (r - 1) / n)`` (the
+    whole gate ``w``, ``n = PLANNED_SHRINK``) or ``g n / (r - 1)`` (the prediction's gate). The result is the
+    largest ``r`` whose :func:`_limit_error` there is within ``_LIMIT_SLACK`` times the per-pixel plan's at
+    ``min_ratio``: pixels at their physical limit end about as precise, with larger ratios."""
+    whole = 1.0 / WHOLE_SHARE**2  # the whole gate in units of the per-pixel gate
+
+    def spatial(r: float) -> float:
+        return _limit_error(r, min(whole / (1.0 + (r - 1.0) / PLANNED_SHRINK), PLANNED_SHRINK / (r - 1.0)))
+
+    target = _LIMIT_SLACK * _limit_error(min_ratio, 1.0 / min_ratio)
+    low, high = min_ratio, limit
+    if spatial(high) <= target:
+        return high
+    for _ in range(60):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if spatial(mid) <= target else (low, mid)
+    return max(low, min_ratio)
+
+
+def _spatial_safe_ratio(bits: int, noise: NoiseModel, sigmas: float) -> float:
+    """:func:`safe_ratio`'s ratio for the decoder with spatial evidence: the largest ratio whose next frame
+    :func:`_spatial_ratio` says the gross-error-prone pixels (up to ``c_min`` counts) still decode."""
+    _, c_min = safe_ratio(bits, noise, sigmas)
+    ratio = _spatial_ratio(
+        torch.tensor(1.0, dtype=torch.float64),
+        torch.tensor(c_min + noise.dark_counts, dtype=torch.float64),
+        torch.tensor(noise.count_variance(c_min), dtype=torch.float64),
+        noise,
+        bits,
+        sigmas,
+    )
+    return float(ratio)
+
+
 def _noisy_plan(
     stops: float,
     bits: int,
@@ -118,10 +183,18 @@ def _noisy_plan(
     min_ratio: float,
     shown: NoiseModel,
     most: int | None = None,
+    spatial: bool = False,
 ) -> list[float] | None:
     """The noise-aware plan from ``base`` (see the module docstring); ``shown`` is the model the errors name. With
-    ``most``, None as soon as the plan would hold more than ``most`` exposures (the budget search's early exit)."""
+    ``most``, None as soon as the plan would hold more than ``most`` exposures (the budget search's early exit).
+
+    With ``spatial``, the plan is for the decoder with spatial evidence (:mod:`~torch_modulo.multishot.spatial`):
+    a frame is decodable where :func:`_spatial_ratio` allows, and ``min_ratio`` becomes :func:`_spatial_min_ratio`
+    (about 3.2 for 1.5): each ratio is as large as the pixels that still need the next frame allow, and no smaller
+    than where pixels at their physical limit keep about the per-pixel plan's precision."""
     gate = _gate(bits, sigmas)
+    if spatial:
+        min_ratio = _spatial_min_ratio(min_ratio, limit)
     first = brightest_unwrapped(bits, noise, sigmas, exposure=base)  # E_max's signal count at `base`
     longest = base * 2.0**stops / first  # E_min = 1 / longest reads one count there
     if longest <= base:
@@ -147,7 +220,11 @@ def _noisy_plan(
                 f"stops={stops:g} under {shown} needs more than {_MAX_FRAMES} exposures; raise tolerance (got "
                 f"{tolerance:g}) or min_ratio (got {min_ratio:g}), or plan fewer stops"
             )
-        ratios = _largest_ratio(torch.tensor(tau, dtype=torch.float64), radiance, 1.0 / total, noise, gate)
+        now = torch.tensor(tau, dtype=torch.float64)
+        if spatial:
+            ratios = _spatial_ratio(now, radiance, 1.0 / total, noise, bits, sigmas)
+        else:
+            ratios = _largest_ratio(now, radiance, 1.0 / total, noise, gate)
         needy = active & (1.0 / total > tolerance**2 * oracle) & (ratios >= min_ratio)
         r = float(ratios[needy].min()) if bool(needy.any()) else limit
         r = min(max(r, min_ratio), limit, longest / tau)

@@ -25,7 +25,7 @@ from torch_modulo._checks import (
 )
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
-from torch_modulo.multishot.planning import dark_rollover_message, unsafe_ratio_message
+from torch_modulo.multishot.planning import _spatial_safe_ratio, dark_rollover_message, unsafe_ratio_message
 from torch_modulo.multishot.stack import neighbour_ratios, sort_stack, stack_exposures
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -50,13 +50,27 @@ def _warn_inexact_counts(out: torch.Tensor, tau: torch.Tensor, counts: bool) -> 
         )
 
 
-def _warn_unsafe(tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: NoiseModel, sigmas: float) -> None:
-    """Warn when a neighbouring ratio leaves pixels that risk gross errors undecodable in the next frame."""
+def _warn_unsafe(
+    tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: NoiseModel, sigmas: float, spatial: bool
+) -> None:
+    """Warn when a neighbouring ratio leaves pixels that risk gross errors undecodable in the next frame (with
+    ``spatial``, even with their neighbours' evidence)."""
     if not ratios.numel():
         return
-    message = unsafe_ratio_message(float(ratios.max()), bits, noise, sigmas)
-    if message is None:
-        return
+    worst = float(ratios.max())
+    message: str | None
+    if spatial:
+        limit = _spatial_safe_ratio(bits, noise, sigmas)
+        if worst <= limit * (1 + 1e-9):
+            return
+        message = (
+            f"exposure ratio {worst:g} is unsafe under {noise} even with spatial evidence: dark pixels cannot be "
+            f"decoded in the longer frame and keep errors of 50% or more; keep ratios <= {limit:.3g}"
+        )
+    else:
+        message = unsafe_ratio_message(worst, bits, noise, sigmas)
+        if message is None:
+            return
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)
     warnings.warn(f"{message}, e.g. exposures = plan_exposures({stops}, bits={bits}, noise=noise)", stacklevel=3)
@@ -145,6 +159,7 @@ def unwrap_multi(
     *,
     noise: NoiseModel | str | None = ...,
     sigmas: float = ...,
+    spatial: bool = ...,
     return_counts: bool = ...,
     return_variance: Literal[False] = ...,
 ) -> torch.Tensor: ...
@@ -159,6 +174,7 @@ def unwrap_multi(
     *,
     noise: NoiseModel | str | None = ...,
     sigmas: float = ...,
+    spatial: bool = ...,
     return_counts: bool = ...,
     return_variance: Literal[True],
 ) -> tuple[torch.Tensor, torch.Tensor]: ...
@@ -173,6 +189,7 @@ def unwrap_multi(
     *,
     noise: NoiseModel | str | None = ...,
     sigmas: float = ...,
+    spatial: bool = ...,
     return_counts: bool = ...,
     return_variance: bool,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]: ...
@@ -186,6 +203,7 @@ def unwrap_multi(
     *,
     noise: NoiseModel | str | None = None,
     sigmas: float = 3.0,
+    spatial: bool = True,
     return_counts: bool = False,
     return_variance: bool = False,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
@@ -220,7 +238,11 @@ def unwrap_multi(
         noise: the sensor's :class:`~torch_modulo.sensors.NoiseModel` (or a preset name such as
             ``"photon-counting"``), or None for noise-free decoding.
         sigmas: with ``noise``: a frame is decoded while the predicted count's standard deviation stays within
-            ``2**bits / (2 sigmas)``.
+            ``2**bits / (2 sigmas)`` (with ``spatial``: the prediction's part; the whole within
+            ``2**bits / (2 z)``, ``z = 2 sigmas / 3``).
+        spatial: with ``noise``: predict each pixel's next count from the mean of its agreeing 5 x 5 neighbours in
+            its image plane (:mod:`torch_modulo.multishot.spatial`), so that the larger ratios of a spatial plan
+            decode; False decodes every pixel alone, as before 2026-12-05. Without ``noise`` it changes nothing.
         return_counts: return the counts at the longest exposure instead of radiance (without noise the integer
             counts ``I = I_m + k 2^N``; with noise the estimate's expected count ``tau_max E``).
         return_variance: also return the variance of the radiance (or counts) from the noise model (requires
@@ -261,6 +283,7 @@ def unwrap_multi(
     noise = as_noise_model(noise)
     check_flag(return_counts, "return_counts")
     check_flag(return_variance, "return_variance")
+    check_flag(spatial, "spatial")
     if noise is not None and method == "paper":
         raise ValueError(f"method='paper' decodes Eqs. 6-7 as printed and takes no noise model; got noise={noise}")
     if return_variance and noise is None:
@@ -291,9 +314,11 @@ def unwrap_multi(
     checking = validation_enabled()  # the checks and warnings below read values: off while torch.compile traces
     if checking:
         _check_dark_counts(tau, bits, noise, sigmas)
-        _warn_unsafe(tau, ratios, bits, noise, sigmas)
+        # The spatial plan's ratios count on a 2-D neighbourhood: narrower images are held to the per-pixel limit.
+        _warn_unsafe(tau, ratios, bits, noise, sigmas, spatial and min(pixel_shape[-2:]) >= 3)
         check_modulus(frames, bits, "moduli")
-    radiance, variance, _ = decode_noisy(frames, tau, bits, noise, sigmas, return_counts)
+    shape = (pixel_shape[-2], pixel_shape[-1]) if spatial and pixel_shape[-2] * pixel_shape[-1] > 1 else None
+    radiance, variance, _ = decode_noisy(frames, tau, bits, noise, sigmas, return_counts, shape)
     if checking:
         _warn_overflow(radiance, moduli.dtype, "counts" if return_counts else "radiance")
         if return_variance:
@@ -345,6 +370,7 @@ class MultiExposureUnwrap(nn.Module):
         return_counts: return counts at the longest exposure instead of radiance.
         noise: the sensor's noise model (or a preset name), or None.
         sigmas: the decoding gate with ``noise`` (see :func:`unwrap_multi`).
+        spatial: with ``noise``, use the neighbours' evidence (see :func:`unwrap_multi`).
 
     Shape:
         - Input: moduli (B, M, C, H, W) or (M, C, H, W); exposures (M,) or (B, M).
@@ -368,6 +394,7 @@ class MultiExposureUnwrap(nn.Module):
         *,
         noise: NoiseModel | str | None = None,
         sigmas: float = 3.0,
+        spatial: bool = True,
     ) -> None:
         super().__init__()
         self.method = check_choice(method, "method", METHODS)
@@ -375,6 +402,7 @@ class MultiExposureUnwrap(nn.Module):
         self.return_counts = check_flag(return_counts, "return_counts")
         self.noise = as_noise_model(noise)
         self.sigmas = check_real(sigmas, "sigmas", positive=True)
+        self.spatial = check_flag(spatial, "spatial")
         if self.noise is not None and method == "paper":
             raise ValueError("method='paper' takes no noise model")
 
@@ -397,6 +425,7 @@ class MultiExposureUnwrap(nn.Module):
             self.method,
             noise=self.noise,
             sigmas=self.sigmas,
+            spatial=self.spatial,
             return_counts=self.return_counts,
         )
         # Keep the frames' memory format: channels-last frames (MultiExposureCapture of channels-last radiance) give
@@ -404,4 +433,7 @@ class MultiExposureUnwrap(nn.Module):
         return like_memory_format(out, frames[:, 0]) if frames.dim() == 5 and out.numel() else out
 
     def extra_repr(self) -> str:
-        return f"bits={self.bits}, method={self.method!r}, return_counts={self.return_counts}, noise={self.noise}"
+        return (
+            f"bits={self.bits}, method={self.method!r}, return_counts={self.return_counts}, noise={self.noise}, "
+            f"spatial={self.spatial}"
+        )

@@ -1,0 +1,188 @@
+"""Tests for torch_modulo/multishot/spatial.py: spatial evidence in noise-aware decoding and its plans."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+import torch_modulo as tm
+from torch_modulo.multishot.noisy import decode_noisy
+from torch_modulo.multishot.planning import _noisy_plan, _spatial_min_ratio
+from torch_modulo.multishot.spatial import neighbour_prediction
+from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
+
+PHOTON = NoiseModel()
+Q16 = NoiseModel.preset("q16")
+
+
+def _plan(stops: float, noise: NoiseModel, spatial: bool) -> list[float]:
+    plan = _noisy_plan(stops, 8, 1.0, 255.0, noise, 3.0, 1.2, 1.5, noise, spatial=spatial)
+    assert plan is not None
+    return [t / plan[-1] for t in plan]
+
+
+def _smooth_scene(stops: float, size: int = 48, seed: int = 0) -> torch.Tensor:
+    """(1, 3, size, size) radiance: smooth blobs over a log ramp, from 16 counts at exposure 1 up over ``stops - 4``
+    stops, with a sharp step down the middle (an edge)."""
+    gen = torch.Generator().manual_seed(seed)
+    y, x = torch.meshgrid(
+        torch.linspace(0, 1, size, dtype=torch.float64), torch.linspace(0, 1, size, dtype=torch.float64), indexing="ij"
+    )
+    level = (x + y) / 2
+    for _ in range(4):
+        cy, cx, width = torch.rand(3, generator=gen, dtype=torch.float64)
+        level = level + 0.3 * torch.exp(-((y - cy) ** 2 + (x - cx) ** 2) / (0.02 + 0.05 * width))
+    level = (level - level.min()) / (level.max() - level.min())
+    level = torch.where(x > 0.5, level, 0.7 * level)  # an edge
+    channels = torch.stack([level, level * 0.9, level * 0.8])
+    return torch.exp2(4 + channels * (stops - 4)).unsqueeze(0)
+
+
+def _rel(estimate: torch.Tensor, radiance: torch.Tensor) -> torch.Tensor:
+    return (estimate - radiance).abs() / radiance
+
+
+def _decode(moduli: torch.Tensor, taus: list[float], noise: NoiseModel, spatial: bool) -> torch.Tensor:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return tm.unwrap_multi(moduli, taus, 8, noise=noise, spatial=spatial)
+
+
+class TestNeighbourPrediction:
+    def test_flat_field_averages_the_window(self) -> None:
+        estimate = torch.full((1, 25), 10.0)
+        estimate[0, 12] = 11.0  # within noise of its neighbours
+        mean, variance = neighbour_prediction(estimate, torch.ones(1, 25), (5, 5))
+        assert float(mean[0, 12]) == pytest.approx(10 + 1 / 25)  # the whole 5 x 5 window
+        assert float(variance[0, 12]) == pytest.approx(1 / 25)
+        assert float(variance[0, 0]) == 1.0  # a corner has no pair of opposite neighbours
+        assert float(variance[0, 2]) == pytest.approx(1 / 5)  # a border pixel has the two pairs along the border
+
+    def test_disagreeing_neighbours_are_left_out(self) -> None:
+        # Across an edge (or a wrong rollover count) the estimates differ by more than their noise: the pixel keeps
+        # its own prediction.
+        estimate = torch.tensor([[0.0, 0.0, 100.0, 100.0]])
+        mean, variance = neighbour_prediction(estimate, torch.ones(1, 4), (1, 4))
+        assert torch.equal(mean, torch.tensor([[0.0, 0.0, 100.0, 100.0]]))
+        assert torch.equal(variance, torch.ones(1, 4))
+
+    def test_planes_are_separate(self) -> None:
+        estimate = torch.tensor([[1.0, 1.0, 5.0, 5.0]])  # two 1 x 2 planes
+        mean, _ = neighbour_prediction(estimate, torch.full((1, 4), 100.0), (1, 2))
+        assert torch.equal(mean, estimate)
+
+
+class TestSpatialDecoding:
+    def test_noise_free_frames_decode_exactly(self) -> None:
+        # Noise-free frames of a spatial plan (ratios far beyond what a pixel alone decodes under q16), decoded with a
+        # quiet model: every rollover count right, the counts exact to a count, as the per-pixel decoder's on the
+        # ratios it can follow.
+        quiet = NoiseModel(read_noise=0.1, shot_noise=False)
+        radiance = _smooth_scene(16)
+        taus = _plan(16, Q16, spatial=True)
+        moduli = SimulatedModuloSensor(8, None)(radiance, taus).moduli
+        counts = tm.unwrap_multi(moduli, taus, 8, noise=quiet, return_counts=True)
+        assert float((counts - torch.floor(radiance * taus[-1]) - 0.5).abs().max()) <= 1.0
+        alone = tm.unwrap_multi(moduli, taus, 8, noise=quiet, return_counts=True, spatial=False)
+        assert torch.equal(counts, alone)
+
+    def test_noise_free_frames_with_a_noise_model_are_decoded_right(self) -> None:
+        # With the q16 model the bright pixels stop at their physical limit, and pixels on steep, curved slopes
+        # (no agreeing pair of neighbours) where a pixel alone cannot follow the ratio; but no decoded frame has a
+        # wrong count, which would leave a pixel far more off than the one-count step of its shortest frame.
+        radiance = _smooth_scene(16)
+        taus = _plan(16, Q16, spatial=True)
+        moduli = SimulatedModuloSensor(8, None)(radiance, taus).moduli
+        error = _rel(_decode(moduli, taus, Q16, spatial=True), radiance)
+        assert bool(((error <= 1 / (radiance * taus[0])) | (error < 0.04)).all())  # 0.04: the darkest read 16 counts
+
+    def test_without_noise_spatial_changes_nothing(self) -> None:
+        radiance = _smooth_scene(16) / 2**8
+        taus = [1.0, 100.0, 10000.0]
+        moduli = SimulatedModuloSensor(8, None)(radiance, taus).moduli
+        plain = tm.unwrap_multi(moduli, taus, 8)
+        assert torch.equal(tm.unwrap_multi(moduli, taus, 8, spatial=True), plain)
+        assert torch.equal(tm.unwrap_multi(moduli, taus, 8, spatial=False), plain)
+
+    @pytest.mark.parametrize("noise", [PHOTON, Q16], ids=["q1", "q16"])
+    def test_texture_never_decodes_worse_than_per_pixel(self, noise: NoiseModel) -> None:
+        # Every pixel drawn independently over 12 stops (texture everywhere): on the per-pixel plan, the neighbours
+        # rarely agree, and the spatial decode is no worse than the per-pixel one.
+        gen = torch.Generator().manual_seed(1)
+        radiance = torch.exp2(4 + 12 * torch.rand((1, 3, 40, 40), generator=gen, dtype=torch.float64))
+        taus = _plan(16, noise, spatial=False)
+        moduli = SimulatedModuloSensor(8, noise, seed=2)(radiance, taus).moduli
+        spatial = _rel(_decode(moduli, taus, noise, spatial=True), radiance)
+        alone = _rel(_decode(moduli, taus, noise, spatial=False), radiance)
+        assert float((spatial > 0.5).double().mean()) <= float((alone > 0.5).double().mean())
+        assert float(spatial.median()) <= float(alone.median()) * 1.01
+        assert float(torch.quantile(spatial.float(), 0.99)) <= float(torch.quantile(alone.float(), 0.99)) * 1.05
+
+    @pytest.mark.parametrize("noise", [PHOTON, Q16], ids=["q1", "q16"])
+    def test_spatial_plan_meets_the_oracle_with_fewer_frames(self, noise: NoiseModel) -> None:
+        # A protocol-N-like check on a smooth scene with an edge: the spatial plan has far fewer frames, and its
+        # decode stays within the targets against the oracle (the longest frame with its true rollover count).
+        stops = 18
+        radiance = _smooth_scene(stops, size=64, seed=3)
+        taus = _plan(stops, noise, spatial=True)
+        assert len(taus) * 1.5 < len(_plan(stops, noise, spatial=False))
+        moduli = SimulatedModuloSensor(8, noise, seed=4)(radiance, taus).moduli
+        oracle = _rel(SimulatedIntensitySensor(53, noise, seed=4)(radiance, taus).frames[:, -1] / taus[-1], radiance)
+        decoded = _rel(_decode(moduli, taus, noise, spatial=True), radiance)
+        assert float((decoded > 0.5).double().mean()) <= float((oracle > 0.5).double().mean()) + 1e-3
+        assert float(decoded.median()) <= 1.5 * float(oracle.median())
+        # The per-pixel decoder cannot follow the spatial plan's ratios.
+        alone = _rel(_decode(moduli, taus, noise, spatial=False), radiance)
+        assert float(alone.median()) > float(decoded.median())
+
+    def test_module_and_function_agree(self) -> None:
+        radiance = _smooth_scene(14, size=24)
+        taus = _plan(14, Q16, spatial=True)
+        moduli = SimulatedModuloSensor(8, Q16, seed=5)(radiance, taus).moduli
+        layer = tm.MultiExposureUnwrap(bits=8, noise=Q16, spatial=False)
+        assert torch.equal(layer(moduli, taus), _decode(moduli, taus, Q16, spatial=False))
+        assert torch.equal(tm.MultiExposureUnwrap(bits=8, noise=Q16)(moduli, taus), _decode(moduli, taus, Q16, True))
+        assert "spatial=False" in repr(layer)
+
+    def test_spatial_plans_warn_only_without_neighbours(self) -> None:
+        taus = _plan(18, PHOTON, spatial=True)
+        radiance = _smooth_scene(18, size=8)
+        moduli = SimulatedModuloSensor(8, PHOTON, seed=6)(radiance, taus).moduli
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)
+        with pytest.warns(UserWarning, match="is unsafe"):
+            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON, spatial=False)
+        with pytest.warns(UserWarning, match="is unsafe"):  # a single row has no 2-D neighbourhood
+            tm.unwrap_multi(moduli[..., :1, :], taus, 8, noise=PHOTON)
+
+    def test_bad_input(self) -> None:
+        moduli = torch.zeros(2, 1, 4, 4)
+        with pytest.raises(TypeError, match="spatial must be a bool"):
+            tm.unwrap_multi(moduli, [1.0, 2.0], 8, noise=Q16, spatial="no")  # type: ignore[call-overload]
+        with pytest.raises(TypeError, match="spatial must be a bool"):
+            tm.MultiExposureUnwrap(noise=Q16, spatial=1)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="whole image planes"):
+            decode_noisy(torch.zeros(1, 2, 10), torch.tensor([[1.0, 2.0]]), 8, Q16, shape=(3, 3))
+
+
+class TestSpatialPlans:
+    def test_min_ratio_keeps_the_limit_precision(self) -> None:
+        assert 2.5 < _spatial_min_ratio(1.5, 255.0) < 4.0
+        assert _spatial_min_ratio(2.0, 255.0) > _spatial_min_ratio(1.5, 255.0)
+
+    @pytest.mark.parametrize("noise", [PHOTON, Q16, NoiseModel.preset("dfpa")], ids=["q1", "q16", "dfpa"])
+    @pytest.mark.parametrize("stops", [10, 16, 24])
+    def test_fewer_frames_larger_ratios(self, noise: NoiseModel, stops: float) -> None:
+        spatial = _plan(stops, noise, spatial=True)
+        alone = _plan(stops, noise, spatial=False)
+        assert len(spatial) <= len(alone)
+        ratios = [b / a for a, b in zip(spatial, spatial[1:], strict=False)]
+        assert all(r >= _spatial_min_ratio(1.5, 255.0) * (1 - 1e-9) for r in ratios)
+        # The same scene: the same shortest exposure (from 1) and at least the same longest.
+        absolute = _noisy_plan(stops, 8, 1.0, 255.0, noise, 3.0, 1.2, 1.5, noise, spatial=True)
+        reference = _noisy_plan(stops, 8, 1.0, 255.0, noise, 3.0, 1.2, 1.5, noise)
+        assert absolute is not None and reference is not None
+        assert absolute[0] == reference[0] == 1.0 and absolute[-1] >= reference[-1] * (1 - 1e-9)
