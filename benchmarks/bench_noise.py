@@ -5,8 +5,10 @@ percentile of its positive values reads 16 counts at the longest exposure (1); t
 ``ceil(log2(max / that percentile) + 4)`` stops; 8 bits. For each noise model (q = 1 e-/count with 1 e- read
 noise, q = 16 with 16 e-):
 
-- modulo: exposures from ``plan_exposures(stops, 8, noise=noise)`` (the longest normalised to 1), captured by
-  ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)``;
+- modulo: exposures from the noise-aware planner for the decoder with spatial evidence (the longest normalised to 1),
+  captured by ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)`` (spatial evidence on);
+  with ``--no-spatial`` the per-pixel plan, ``plan_exposures(stops, 8, noise=noise)``, and the per-pixel decoder
+  (``spatial=False``), as before 2026-12-05;
 - blind: the noise-free plan (ratios near 2^N) decoded by the noise-free robust rule, as before noise-aware decoding;
 - oracle: the longest frame's noisy count with its rollover count known (the same noise draws: the simulated
   intensity sensor with bits=53 on float64 input and the same seed), divided by its exposure;
@@ -21,6 +23,7 @@ frames used; for the modulo decoder, the share of values more than 3 of its repo
 
     python benchmarks/bench_noise.py                 # all dev scenes, both noise models
     python benchmarks/bench_noise.py --limit 3       # a quick look
+    python benchmarks/bench_noise.py --no-spatial    # the per-pixel plan and decoder
 """
 
 from __future__ import annotations
@@ -39,10 +42,12 @@ import torch
 import torch_modulo as tm
 from torch_modulo import protocols
 from torch_modulo._argtypes import nonnegative_int
+from torch_modulo.multishot.planning import _noisy_plan
 from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
 
 NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": NoiseModel(16.0, 16.0)}
 INTENSITY_RATIOS = (16.0, 4.0, 2.0, 1.25)
+INTENSITY_KEYS = [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]
 BANDS = ("dark", "mid", "bright")
 
 
@@ -86,20 +91,35 @@ def blind_scores(batch: torch.Tensor, radiance: torch.Tensor, stops: int, noise:
     return {**scores(tm.unwrap_multi(moduli, taus, 8)[0], radiance), "frames": len(taus)}
 
 
+def modulo_plan(stops: int, noise: NoiseModel, args: argparse.Namespace) -> list[float]:
+    """The noise-aware plan, the longest exposure normalised to 1: for the decoder with spatial evidence unless
+    ``--no-spatial`` (then exactly ``plan_exposures``). plan_exposures takes no ``spatial`` yet, so the spatial plan
+    is the planner's own (base 1; these noise models have no dark current, so any base gives the same plan scaled)."""
+    if args.no_spatial:
+        plan = tm.plan_exposures(stops, 8, noise=noise, tolerance=args.tolerance, min_ratio=args.min_ratio)
+    else:
+        assert noise.dark_counts == 0
+        found = _noisy_plan(stops, 8, 1.0, 255.0, noise, 3.0, args.tolerance, args.min_ratio, noise, spatial=True)
+        assert found is not None
+        plan = found
+    return [t / plan[-1] for t in plan]
+
+
 def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) -> dict[str, object]:
     noise = NOISES[noise_name]
     image = protocols.load_scene(path, 512)
     scale, stops = protocols.protocol_n(image)
     radiance = image * scale
     batch = radiance.unsqueeze(0)  # float64 (1, 3, H, W)
-    plan = tm.plan_exposures(stops, 8, noise=noise, tolerance=args.tolerance, min_ratio=args.min_ratio)
-    taus = [t / plan[-1] for t in plan]
+    taus = modulo_plan(stops, noise, args)
     start = time.perf_counter()
     moduli = SimulatedModuloSensor(8, noise, seed=seed)(batch, taus).moduli
     truth_counts = SimulatedIntensitySensor(53, noise, seed=seed)(batch, taus).frames
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        decoded, variance = tm.unwrap_multi(moduli, taus, 8, noise=noise, return_variance=True)
+        decoded, variance = tm.unwrap_multi(
+            moduli, taus, 8, noise=noise, spatial=not args.no_spatial, return_variance=True
+        )
     seconds = time.perf_counter() - start
     row: dict[str, object] = {
         "scene": str(path.relative_to(args.scenes)),
@@ -110,8 +130,10 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
         "modulo": {**scores(decoded[0], radiance), "beyond_3sd": calibration(decoded[0], variance[0], radiance)},
         "oracle": scores(truth_counts[0, -1] / taus[-1], radiance),
         "robust": scores(tm.unwrap_multi(moduli, taus, 8)[0], radiance),
-        "blind": blind_scores(batch, radiance, stops, noise, seed),
     }
+    if args.modulo_only:
+        return row
+    row["blind"] = blind_scores(batch, radiance, stops, noise, seed)
     for ratio in INTENSITY_RATIOS:
         taus_i = geometric(taus[0], ratio)
         frames = SimulatedIntensitySensor(8, noise, seed=seed)(batch, taus_i).frames
@@ -122,7 +144,7 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
 
 def summarise(rows: list[dict[str, object]], noise_name: str) -> dict[str, object]:
     part = [r for r in rows if r["noise"] == noise_name]
-    keys = ["modulo", "oracle", "robust", "blind"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]
+    keys = [k for k in ["modulo", "oracle", "robust", "blind", *INTENSITY_KEYS] if k in part[0]]
     out: dict[str, object] = {"scenes": len(part), "frames_modulo": statistics.mean(r["frames"] for r in part)}
     for key in keys:
         out[key] = {s: statistics.mean(r[key][s] for r in part) for s in ("median", "p99", "gross", *BANDS)}
@@ -139,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", nargs="+", default=list(NOISES), choices=list(NOISES))
     parser.add_argument("--tolerance", type=float, default=1.2, help="plan_exposures tolerance")
     parser.add_argument("--min-ratio", type=float, default=1.5, help="plan_exposures min_ratio")
+    parser.add_argument("--no-spatial", action="store_true", help="the per-pixel plan and decoder")
+    parser.add_argument("--modulo-only", action="store_true", help="skip the blind and intensity rows (faster)")
     parser.add_argument("--json", type=Path, help="also write the rows and summary here")
     args = parser.parse_args(argv)
     scenes = protocols.list_scenes(args.scenes)
@@ -163,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n| noise | decoder | frames | median rel. error | p99 | gross (>50%) | median: dark / mid / bright |")
     print("|---|---|---|---|---|---|---|")
     for name, s in summary.items():
-        for key in ["modulo", "oracle", "robust", "blind"] + [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]:
+        for key in [k for k in ["modulo", "oracle", "robust", "blind", *INTENSITY_KEYS] if k in s]:
             frames = s["frames_modulo"] if key in ("modulo", "robust", "oracle") else s[key]["frames"]
             v = s[key]
             bands = " / ".join(f"{v[band]:.4f}" for band in BANDS)
