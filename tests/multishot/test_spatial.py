@@ -55,10 +55,18 @@ class TestNeighbourPrediction:
         estimate = torch.full((1, 25), 10.0)
         estimate[0, 12] = 11.0  # within noise of its neighbours
         mean, variance = neighbour_prediction(estimate, torch.ones(1, 25), (5, 5))
-        assert float(mean[0, 12]) == pytest.approx(10 + 1 / 25)  # the whole 5 x 5 window
-        assert float(variance[0, 12]) == pytest.approx(1 / 25)
+        assert float(mean[0, 12]) == pytest.approx(10 + 1 / 9)  # the whole 3 x 3 window
+        assert float(variance[0, 12]) == pytest.approx(1 / 9)
         assert float(variance[0, 0]) == 1.0  # a corner has no pair of opposite neighbours
-        assert float(variance[0, 2]) == pytest.approx(1 / 5)  # a border pixel has the two pairs along the border
+        assert float(variance[0, 2]) == pytest.approx(1 / 3)  # a border pixel has the pair along the border
+
+    def test_slopes_are_predicted_exactly(self) -> None:
+        # A linear slope within the noise: each pair's mean is the pixel's value.
+        y, x = torch.meshgrid(torch.arange(6.0), torch.arange(7.0), indexing="ij")
+        estimate = (100 + 0.3 * x - 0.2 * y).reshape(1, -1)
+        mean, variance = neighbour_prediction(estimate, torch.ones(1, 42), (6, 7))
+        torch.testing.assert_close(mean, estimate)
+        assert float(variance.reshape(6, 7)[2, 3]) == pytest.approx(1 / 9)
 
     def test_disagreeing_neighbours_are_left_out(self) -> None:
         # Across an edge (or a wrong rollover count) the estimates differ by more than their noise: the pixel keeps
@@ -136,6 +144,21 @@ class TestSpatialDecoding:
         # The per-pixel decoder cannot follow the spatial plan's ratios.
         alone = _rel(_decode(moduli, taus, noise, spatial=False), radiance)
         assert float(alone.median()) > float(decoded.median())
+
+    def test_bands_decode_as_the_whole_plane(self) -> None:
+        # On the CPU planes are decoded band by band of rows with context; the result is the whole plane's (the
+        # whole-tensor path, taken where autograd tracks the frames).
+        radiance = _smooth_scene(16, size=40)[:, :2].repeat_interleave(18, dim=2)  # 720 x 40
+        radiance = torch.cat([radiance] * 10, dim=-1)  # 720 x 400: bands of 655 rows
+        taus = _plan(16, Q16, spatial=True)
+        moduli = SimulatedModuloSensor(8, Q16, seed=8)(radiance, taus).moduli
+        b, m = moduli.shape[:2]
+        flat = moduli.reshape(b, m, -1).float()
+        tau = torch.tensor([taus], dtype=torch.float64)
+        banded = decode_noisy(flat, tau, 8, Q16, shape=(720, 400))
+        whole = decode_noisy(flat.clone().requires_grad_(), tau, 8, Q16, shape=(720, 400))
+        for a, w in zip(banded, whole, strict=True):
+            torch.testing.assert_close(a, w.detach(), rtol=1e-6, atol=0.0)
 
     def test_module_and_function_agree(self) -> None:
         radiance = _smooth_scene(14, size=24)

@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import torch
 
 from torch_modulo._chunks import chunk_on_cpu, column_chunks
-from torch_modulo.multishot.spatial import gates, neighbour_prediction
+from torch_modulo.multishot.spatial import RADIUS, gates, neighbour_prediction
 from torch_modulo.multishot.stack import wide_dtype
 from torch_modulo.noise import NoiseModel
 
@@ -69,6 +69,8 @@ _TOP = 2.0**16
 _NEWTON_STEPS = 8
 #: Columns per CPU chunk.
 _CHUNK = 1 << 16
+#: Pixels per band of rows with spatial evidence (more operations per pixel: larger bands keep their overhead low).
+_BAND = 1 << 18
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _INV_SQRT_2 = 1.0 / math.sqrt(2.0)
@@ -191,14 +193,13 @@ def decode_noisy(
     if shape is None:
         gate = (2**bits / (2.0 * sigmas)) ** 2
         args = (float(2**bits), gate, gate, model, None)
-        width = _CHUNK
     else:
         plane = shape[0] * shape[1]
         if plane == 0 or n % plane:
             raise ValueError(f"shape={shape} does not divide the {n} pixels of each frame into whole image planes")
         args = (float(2**bits), *gates(bits, sigmas), model, shape)
-        width = plane * max(1, _CHUNK // plane)  # whole planes: a pixel's neighbours are in its chunk
     if chunk_on_cpu(frames) and not torch.compiler.is_compiling() and n:
+        width = _CHUNK
         radiance = torch.empty((b, n), dtype=work)
         variance, used = torch.empty_like(radiance), torch.empty_like(radiance)
         # Item by item (each item's exposures as numbers), in chunks whose columns depend only on n: an item decodes
@@ -206,6 +207,10 @@ def decode_noisy(
         for item in range(b):
             rows = slice(item, item + 1)
             exposures = t[item].tolist()
+            if shape is not None:
+                outs = (radiance[rows], variance[rows], used[rows])
+                _decode_bands(frames[rows], exposures, t[rows], dark[rows], table[rows], args, shape, outs)
+                continue
             for cols in column_chunks(n, 1, chunk=width, min_width=width):
                 out = _decode(frames[rows, :, cols].to(work), exposures, t[rows], dark[rows], table[rows], *args)
                 radiance[rows, cols], variance[rows, cols], used[rows, cols] = out
@@ -217,6 +222,36 @@ def decode_noisy(
         return (radiance - dark) * longest, variance * (longest * longest), used
     down = down.unsqueeze(1).to(work)  # exact while the radiance is within the work dtype's range
     return ((radiance - dark) * down).clamp_min(0.0), variance * down * down, used
+
+
+def _decode_bands(
+    x: torch.Tensor,
+    exposures: list[float],
+    t: torch.Tensor,
+    dark: torch.Tensor,
+    table: torch.Tensor,
+    args: tuple[float, float, float, _Counts, tuple[int, int] | None],
+    shape: tuple[int, int],
+    outs: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+) -> None:
+    """:func:`_decode` of one item's (1, M, n) moduli with spatial evidence, band of rows by band of rows of each
+    (H, W) plane, into ``outs`` (three (1, n) views). A band is decoded with ``RADIUS (M - 1)`` rows of context on
+    each side: each frame's prediction reaches ``RADIUS`` rows, so the rows beyond it cannot change the band's
+    result, which is the whole plane's."""
+    h, w = shape
+    m = x.shape[1]
+    halo = RADIUS * (m - 1)
+    band = max(_BAND // max(w, 1), 2 * halo, 1)
+    work = outs[0].dtype
+    for start in range(0, x.shape[2], h * w):  # plane by plane
+        for top in range(0, h, band):
+            low, high = max(top - halo, 0), min(top + band + halo, h)
+            cols = slice(start + low * w, start + high * w)
+            out = _decode(x[:, :, cols].to(work), exposures, t, dark, table, *args[:4], (high - low, w))
+            keep = slice((top - low) * w, (min(top + band, h) - low) * w)
+            done = slice(start + top * w, start + min(top + band, h) * w)
+            for target, part in zip(outs, out, strict=True):
+                target[:, done] = part[:, keep]
 
 
 def _decode(

@@ -240,7 +240,7 @@ def unwrap_multi(
         sigmas: with ``noise``: a frame is decoded while the predicted count's standard deviation stays within
             ``2**bits / (2 sigmas)`` (with ``spatial``: the prediction's part; the whole within
             ``2**bits / (2 z)``, ``z = 2 sigmas / 3``).
-        spatial: with ``noise``: predict each pixel's next count from the mean of its agreeing 5 x 5 neighbours in
+        spatial: with ``noise``: predict each pixel's next count from the mean of its agreeing 3 x 3 neighbours in
             its image plane (:mod:`torch_modulo.multishot.spatial`), so that the larger ratios of a spatial plan
             decode; False decodes every pixel alone, as before 2026-12-05. Without ``noise`` it changes nothing.
         return_counts: return the counts at the longest exposure instead of radiance (without noise the integer
