@@ -5,10 +5,9 @@ percentile of its positive values reads 16 counts at the longest exposure (1); t
 ``ceil(log2(max / that percentile) + 4)`` stops; 8 bits. For each noise model (q = 1 e-/count with 1 e- read
 noise, q = 16 with 16 e-):
 
-- modulo: exposures from the noise-aware planner for the decoder with spatial evidence (the longest normalised to 1),
-  captured by ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)`` (spatial evidence on);
-  with ``--no-spatial`` the per-pixel plan, ``plan_exposures(stops, 8, noise=noise)``, and the per-pixel decoder
-  (``spatial=False``), as before 2026-12-05;
+- modulo: exposures from ``plan_exposures(stops, 8, noise=noise)`` (the longest normalised to 1), captured by
+  ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)``, the defaults (each pixel decoded
+  alone); with ``--spatial`` the plan and the decoder with spatial evidence (``spatial=True`` in both);
 - blind: the noise-free plan (ratios near 2^N) decoded by the noise-free robust rule, as before noise-aware decoding;
 - oracle: the longest frame's noisy count with its rollover count known (the same noise draws: the simulated
   intensity sensor with bits=53 on float64 input and the same seed), divided by its exposure;
@@ -23,7 +22,7 @@ frames used; for the modulo decoder, the share of values more than 3 of its repo
 
     python benchmarks/bench_noise.py                 # all dev scenes, both noise models
     python benchmarks/bench_noise.py --limit 3       # a quick look
-    python benchmarks/bench_noise.py --no-spatial    # the per-pixel plan and decoder
+    python benchmarks/bench_noise.py --spatial       # the plan and decoder with spatial evidence
 """
 
 from __future__ import annotations
@@ -42,7 +41,6 @@ import torch
 import torch_modulo as tm
 from torch_modulo import protocols
 from torch_modulo._argtypes import nonnegative_int
-from torch_modulo.multishot.planning import _noisy_plan
 from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
 
 NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": NoiseModel(16.0, 16.0)}
@@ -92,16 +90,11 @@ def blind_scores(batch: torch.Tensor, radiance: torch.Tensor, stops: int, noise:
 
 
 def modulo_plan(stops: int, noise: NoiseModel, args: argparse.Namespace) -> list[float]:
-    """The noise-aware plan, the longest exposure normalised to 1: for the decoder with spatial evidence unless
-    ``--no-spatial`` (then exactly ``plan_exposures``). plan_exposures takes no ``spatial`` yet, so the spatial plan
-    is the planner's own (base 1; these noise models have no dark current, so any base gives the same plan scaled)."""
-    if args.no_spatial:
-        plan = tm.plan_exposures(stops, 8, noise=noise, tolerance=args.tolerance, min_ratio=args.min_ratio)
-    else:
-        assert noise.dark_counts == 0
-        found = _noisy_plan(stops, 8, 1.0, 255.0, noise, 3.0, args.tolerance, args.min_ratio, noise, spatial=True)
-        assert found is not None
-        plan = found
+    """The noise-aware plan, the longest exposure normalised to 1: ``plan_exposures``, for the decoder with spatial
+    evidence with ``--spatial``."""
+    plan = tm.plan_exposures(
+        stops, 8, noise=noise, tolerance=args.tolerance, min_ratio=args.min_ratio, spatial=args.spatial
+    )
     return [t / plan[-1] for t in plan]
 
 
@@ -117,9 +110,7 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
     truth_counts = SimulatedIntensitySensor(53, noise, seed=seed)(batch, taus).frames
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        decoded, variance = tm.unwrap_multi(
-            moduli, taus, 8, noise=noise, spatial=not args.no_spatial, return_variance=True
-        )
+        decoded, variance = tm.unwrap_multi(moduli, taus, 8, noise=noise, spatial=args.spatial, return_variance=True)
     seconds = time.perf_counter() - start
     row: dict[str, object] = {
         "scene": str(path.relative_to(args.scenes)),
@@ -161,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", nargs="+", default=list(NOISES), choices=list(NOISES))
     parser.add_argument("--tolerance", type=float, default=1.2, help="plan_exposures tolerance")
     parser.add_argument("--min-ratio", type=float, default=1.5, help="plan_exposures min_ratio")
-    parser.add_argument("--no-spatial", action="store_true", help="the per-pixel plan and decoder")
+    parser.add_argument("--spatial", action="store_true", help="the plan and decoder with spatial evidence")
     parser.add_argument("--modulo-only", action="store_true", help="skip the blind and intensity rows (faster)")
     parser.add_argument("--json", type=Path, help="also write the rows and summary here")
     args = parser.parse_args(argv)

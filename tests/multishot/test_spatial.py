@@ -17,9 +17,13 @@ PHOTON = NoiseModel()
 Q16 = NoiseModel.preset("q16")
 
 
+def _plan_default(stops: float, noise: NoiseModel) -> list[float]:
+    plan = tm.plan_exposures(stops, 8, noise=noise)
+    return [t / plan[-1] for t in plan]
+
+
 def _plan(stops: float, noise: NoiseModel, spatial: bool) -> list[float]:
-    plan = _noisy_plan(stops, 8, 1.0, 255.0, noise, 3.0, 1.2, 1.5, noise, spatial=spatial)
-    assert plan is not None
+    plan = tm.plan_exposures(stops, 8, noise=noise, spatial=spatial)
     return [t / plan[-1] for t in plan]
 
 
@@ -164,10 +168,17 @@ class TestSpatialDecoding:
         radiance = _smooth_scene(14, size=24)
         taus = _plan(14, Q16, spatial=True)
         moduli = SimulatedModuloSensor(8, Q16, seed=5)(radiance, taus).moduli
-        layer = tm.MultiExposureUnwrap(bits=8, noise=Q16, spatial=False)
-        assert torch.equal(layer(moduli, taus), _decode(moduli, taus, Q16, spatial=False))
-        assert torch.equal(tm.MultiExposureUnwrap(bits=8, noise=Q16)(moduli, taus), _decode(moduli, taus, Q16, True))
-        assert "spatial=False" in repr(layer)
+        layer = tm.MultiExposureUnwrap(bits=8, noise=Q16, spatial=True)
+        assert torch.equal(layer(moduli, taus), _decode(moduli, taus, Q16, spatial=True))
+        assert torch.equal(tm.MultiExposureUnwrap(bits=8, noise=Q16)(moduli, taus), _decode(moduli, taus, Q16, False))
+        assert "spatial=True" in repr(layer)
+
+    def test_defaults_decode_and_plan_each_pixel_alone(self) -> None:
+        radiance = _smooth_scene(14, size=24)
+        taus = _plan(14, Q16, spatial=False)
+        assert taus == _plan_default(14, Q16)
+        moduli = SimulatedModuloSensor(8, Q16, seed=5)(radiance, taus).moduli
+        assert torch.equal(tm.unwrap_multi(moduli, taus, 8, noise=Q16), _decode(moduli, taus, Q16, spatial=False))
 
     def test_spatial_plans_warn_only_without_neighbours(self) -> None:
         taus = _plan(18, PHOTON, spatial=True)
@@ -175,11 +186,11 @@ class TestSpatialDecoding:
         moduli = SimulatedModuloSensor(8, PHOTON, seed=6)(radiance, taus).moduli
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)
-        with pytest.warns(UserWarning, match="is unsafe"):
-            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON, spatial=False)
+            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON, spatial=True)
+        with pytest.warns(UserWarning, match=r"is unsafe .* \(or decode with spatial=True, for which these ratios"):
+            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)  # the default decodes each pixel alone
         with pytest.warns(UserWarning, match="is unsafe"):  # a single row has no 2-D neighbourhood
-            tm.unwrap_multi(moduli[..., :1, :], taus, 8, noise=PHOTON)
+            tm.unwrap_multi(moduli[..., :1, :], taus, 8, noise=PHOTON, spatial=True)
 
     def test_bad_input(self) -> None:
         moduli = torch.zeros(2, 1, 4, 4)

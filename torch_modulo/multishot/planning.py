@@ -37,7 +37,7 @@ from typing import cast
 
 import torch
 
-from torch_modulo._checks import check_bits, check_int, check_real
+from torch_modulo._checks import check_bits, check_flag, check_int, check_real
 from torch_modulo.multishot.spatial import PLANNED_SHRINK, WHOLE_SHARE, gates
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -256,6 +256,7 @@ def plan_exposures(
     tolerance: float = 1.2,
     min_ratio: float = 1.5,
     frames: int | None = None,
+    spatial: bool = False,
 ) -> list[float]:
     """The fewest exposures whose modulo captures decode a scene of ``stops`` stops reliably, or the best plan within
     a budget of ``frames`` exposures.
@@ -290,6 +291,9 @@ def plan_exposures(
         min_ratio: with noise, the smallest ratio worth a frame (> 1): no neighbouring ratio of the plan is smaller
             (the last frame may then lie past the exposure where ``E_min`` reads one count).
         frames: a budget of exposures (>= 1), or None for the fewest that meet ``tolerance``.
+        spatial: with noise, plan for the decoder with spatial evidence (``unwrap_multi(..., spatial=True)``): its
+            predictions average agreeing neighbours, so the plan takes larger ratios (at least about 3.1 with the
+            default ``min_ratio``) and fewer frames. Decode such a plan with ``spatial=True``.
 
     Returns:
         Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
@@ -318,6 +322,7 @@ def plan_exposures(
         4
     """
     stops = check_real(stops, "stops", 0.0)
+    spatial = check_flag(spatial, "spatial")
     bits = check_bits(bits, torch.float64)
     if base is not None and longest is not None:
         raise ValueError(f"give base or longest, not both; got base={base!r} and longest={longest!r}")
@@ -361,7 +366,9 @@ def plan_exposures(
         scaled = dataclasses.replace(model, dark_current=model.dark_current * unit) if model.dark_current else model
 
         def make(tol: float, most: int | None = None) -> list[float] | None:
-            found = _noisy_plan(stops, bits, base / unit, limit, scaled, sigmas, tol, min_ratio, model, most)
+            found = _noisy_plan(
+                stops, bits, base / unit, limit, scaled, sigmas, tol, min_ratio, model, most, spatial=spatial
+            )
             return None if found is None else [t * unit for t in found]
 
         if frames is None:

@@ -71,9 +71,12 @@ def _warn_unsafe(
         message = unsafe_ratio_message(worst, bits, noise, sigmas)
         if message is None:
             return
+        if worst <= _spatial_safe_ratio(bits, noise, sigmas) * (1 + 1e-9):  # a plan for the spatial decoder
+            message += " (or decode with spatial=True, for which these ratios are safe)"
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)
-    warnings.warn(f"{message}, e.g. exposures = plan_exposures({stops}, bits={bits}, noise=noise)", stacklevel=3)
+    plan = f"plan_exposures({stops}, bits={bits}, noise=noise{', spatial=True' if spatial else ''})"
+    warnings.warn(f"{message}, e.g. exposures = {plan}", stacklevel=3)
 
 
 def _check_dark_counts(tau: torch.Tensor, bits: int, noise: NoiseModel, sigmas: float) -> None:
@@ -203,7 +206,7 @@ def unwrap_multi(
     *,
     noise: NoiseModel | str | None = None,
     sigmas: float = 3.0,
-    spatial: bool = True,
+    spatial: bool = False,
     return_counts: bool = False,
     return_variance: bool = False,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
@@ -242,7 +245,8 @@ def unwrap_multi(
             ``2**bits / (2 z)``, ``z = 2 sigmas / 3``).
         spatial: with ``noise``: predict each pixel's next count from the mean of its agreeing 3 x 3 neighbours in
             its image plane (:mod:`torch_modulo.multishot.spatial`), so that the larger ratios of a spatial plan
-            decode; False decodes every pixel alone, as before 2026-12-05. Without ``noise`` it changes nothing.
+            (``plan_exposures(..., noise=..., spatial=True)``) decode; False (the default) decodes every pixel
+            alone. Without ``noise`` it changes nothing.
         return_counts: return the counts at the longest exposure instead of radiance (without noise the integer
             counts ``I = I_m + k 2^N``; with noise the estimate's expected count ``tau_max E``).
         return_variance: also return the variance of the radiance (or counts) from the noise model (requires
@@ -394,7 +398,7 @@ class MultiExposureUnwrap(nn.Module):
         *,
         noise: NoiseModel | str | None = None,
         sigmas: float = 3.0,
-        spatial: bool = True,
+        spatial: bool = False,
     ) -> None:
         super().__init__()
         self.method = check_choice(method, "method", METHODS)
