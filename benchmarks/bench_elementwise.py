@@ -8,8 +8,8 @@ exposures), so their reference is the clone of that stack; every other operation
 
 The noise-aware rows decode (and simulate) the stack of a ``plan_exposures(16, bits, noise="q16")`` plan, 7 frames
 at 8 bits, for ``--noise-batch`` items (default 2) of the shape's (C, H, W): ``unwrap_multi noise`` decodes it with
-the noise model, ``simulate noise`` is the noisy ``SimulatedModuloSensor`` that captures it; both against the clone
-of that stack.
+the noise model, ``unwrap_multi noise spatial`` with spatial evidence (``spatial=True``), ``simulate noise`` is
+the noisy ``SimulatedModuloSensor`` that captures it; all against the clone of that stack.
 
 The rows marked "compiled" time the layers under ``torch.compile(layer, fullgraph=True)`` (Inductor), which skips
 the value checks by itself; compilation happens in the warm-up call and is not timed. ``--no-compile`` skips them
@@ -21,6 +21,7 @@ both see the same machine load).
     python benchmarks/bench_elementwise.py                      # the full size
     python benchmarks/bench_elementwise.py --shape 2 3 256 256  # a quick run
     python benchmarks/bench_elementwise.py --no-compile         # eager rows only
+    python benchmarks/bench_elementwise.py --noise-only         # the noise-aware rows only
 """
 
 from __future__ import annotations
@@ -78,6 +79,12 @@ def noisy_rows(radiance: torch.Tensor, bits: int, items: int, repeats: int) -> l
     sensor = tm.sensors.SimulatedModuloSensor(bits, "q16", seed=0)
     return [
         bench("unwrap_multi noise", lambda: tm.unwrap_multi(moduli, plan, bits, noise="q16"), moduli, repeats),
+        bench(
+            "unwrap_multi noise spatial",
+            lambda: tm.unwrap_multi(moduli, plan, bits, noise="q16", spatial=True),
+            moduli,
+            repeats,
+        ),
         bench("simulate noise", lambda: sensor(scene, plan), moduli, repeats),
     ]
 
@@ -105,10 +112,17 @@ def compiled_rows(
     for name, layer, data, reference in cases:
         fn = torch.compile(layer.to(device), fullgraph=True, dynamic=False)
         rows.append(bench(f"{name} compiled", lambda fn=fn, data=data: fn(data), reference, repeats))
+    return rows + noisy_compiled_rows(radiance, bits, repeats, items)
+
+
+def noisy_compiled_rows(radiance: torch.Tensor, bits: int, repeats: int, items: int) -> list[dict[str, float | str]]:
+    """The noise-aware decode under ``torch.compile(fullgraph=True)``, per pixel and with spatial evidence."""
     _, noisy, plan = noisy_stack(radiance, bits, items)
-    exposures = torch.tensor(plan, dtype=torch.float64, device=device)
-    fn = torch.compile(tm.MultiExposureUnwrap(bits, noise="q16"), fullgraph=True, dynamic=False)
-    rows.append(bench("unwrap_multi noise compiled", lambda: fn(noisy, exposures), noisy, repeats))
+    exposures = torch.tensor(plan, dtype=torch.float64, device=radiance.device)
+    rows = []
+    for name, spatial in (("unwrap_multi noise compiled", False), ("unwrap_multi noise spatial compiled", True)):
+        fn = torch.compile(tm.MultiExposureUnwrap(bits, noise="q16", spatial=spatial), fullgraph=True, dynamic=False)
+        rows.append(bench(name, lambda fn=fn: fn(noisy, exposures), noisy, repeats))
     return rows
 
 
@@ -122,6 +136,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     parser.add_argument("--noise-batch", type=positive_int, default=2, help="batch items of the noise-aware rows")
     parser.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
+    parser.add_argument("--noise-only", action="store_true", help="only the noise-aware rows")
     args = parser.parse_args(argv)
 
     where, dtype = args.device, getattr(torch, args.dtype)
@@ -133,24 +148,35 @@ def main(argv: list[str] | None = None) -> None:
     frames = torch.stack([tm.capture_intensity(radiance, t, args.bits) for t in taus], dim=1)
     counts = torch.floor(radiance * taus[-1])
 
-    rows = [
-        bench("modulo_wrap", lambda: tm.modulo_wrap(counts, args.bits), counts, args.repeats),
-        bench("capture_modulo", lambda: tm.capture_modulo(radiance, taus[-1], args.bits), radiance, args.repeats),
-        bench("capture_intensity", lambda: tm.capture_intensity(radiance, taus[-1], args.bits), radiance, args.repeats),
-        bench("capture_stack", lambda: tm.capture_stack(radiance, taus, args.bits), moduli, args.repeats),
-        bench("unwrap_multi robust", lambda: tm.unwrap_multi(moduli, taus, args.bits), moduli, args.repeats),
-        bench(
-            "unwrap_multi paper", lambda: tm.unwrap_multi(moduli, taus, args.bits, method="paper"), moduli, args.repeats
-        ),
-        bench("merge_intensity", lambda: tm.merge_intensity(frames, taus, args.bits), frames, args.repeats),
-    ]
+    rows = (
+        []
+        if args.noise_only
+        else [
+            bench("modulo_wrap", lambda: tm.modulo_wrap(counts, args.bits), counts, args.repeats),
+            bench("capture_modulo", lambda: tm.capture_modulo(radiance, taus[-1], args.bits), radiance, args.repeats),
+            bench(
+                "capture_intensity", lambda: tm.capture_intensity(radiance, taus[-1], args.bits), radiance, args.repeats
+            ),
+            bench("capture_stack", lambda: tm.capture_stack(radiance, taus, args.bits), moduli, args.repeats),
+            bench("unwrap_multi robust", lambda: tm.unwrap_multi(moduli, taus, args.bits), moduli, args.repeats),
+            bench(
+                "unwrap_multi paper",
+                lambda: tm.unwrap_multi(moduli, taus, args.bits, method="paper"),
+                moduli,
+                args.repeats,
+            ),
+            bench("merge_intensity", lambda: tm.merge_intensity(frames, taus, args.bits), frames, args.repeats),
+        ]
+    )
     rows += noisy_rows(radiance, args.bits, args.noise_batch, args.repeats)
-    if not args.no_compile:
+    if args.noise_only and not args.no_compile:
+        rows += noisy_compiled_rows(radiance, args.bits, args.repeats, args.noise_batch)
+    elif not args.no_compile:
         rows += compiled_rows(radiance, moduli, counts, taus, args.bits, args.repeats, args.noise_batch)
     print(f"shape {tuple(args.shape)} {args.dtype} on {where}, {torch.get_num_threads()} threads, M = {len(taus)}")
-    print(f"{'operation':<30}{'ms':>10}{'clone ms':>10}{'x clone':>9}")
+    print(f"{'operation':<37}{'ms':>10}{'clone ms':>10}{'x clone':>9}")
     for row in rows:
-        print(f"{row['op']:<30}{row['ms']:>10.1f}{row['clone_ms']:>10.1f}{row['ratio']:>9.2f}")
+        print(f"{row['op']:<37}{row['ms']:>10.1f}{row['clone_ms']:>10.1f}{row['ratio']:>9.2f}")
     summary = {
         "shape": args.shape,
         "dtype": args.dtype,
