@@ -91,7 +91,7 @@ class TestNetworkThreads:
         assert torch.get_num_threads() == 2
         every = unwrap_single(modulus, method="learned", threads=0)
         assert torch.equal(one, every) and seen == [1, 2]
-        assert solver.LEARNED_OPTIONS["threads"][0] == solver.NETWORK_THREADS == 1
+        assert solver.LEARNED_OPTIONS["threads"][0] == solver.NETWORK_THREADS == 0  # all threads unless asked
 
     def test_threads_restored_when_the_network_raises(self) -> None:
         torch.set_num_threads(2)

@@ -55,8 +55,9 @@ MOSAIC_CUTS = 4
 MIN_LEVEL_SIDE = 8
 
 #: The default ``threads`` of ``method="learned"``: the torch threads its networks run on on the CPU
-#: (:func:`network_threads`). One: on shared cores more threads cost more than they gain (docs/singleshot.md).
-NETWORK_THREADS = 1
+#: (:func:`network_threads`). 0: all of torch's, the fastest on a machine the job has to itself; 1 is faster where
+#: other jobs share the cores (docs/singleshot.md).
+NETWORK_THREADS = 0
 
 #: With ``max_cuts`` or ``levels``, the costs of the jumps within ``BAND`` of each pair's most likely one are kept for
 #: the cuts and the level moves (farther jumps cost :data:`~torch_modulo.singleshot.learned.MAX_COST`):
@@ -149,7 +150,7 @@ def network_threads(threads: int):
     The networks' convolutions are small (16 to 64 channels): each splits its work among the threads and waits for
     the slowest at the end. On a machine whose cores other jobs share, a thread that loses its core stalls every
     convolution, and on 2 shared cores 2 threads took 4 to 5 times as long as one (docs/singleshot.md, "Worst scenes
-    and speed"); on a quiet machine with many cores, 0 (all of torch's threads) is faster. torch's thread count is
+    and speed"); on a machine the job has to itself, 0 (all of torch's threads) is faster. torch's thread count is
     per process: other threads that run torch meanwhile get the same number.
     """
     before = torch.get_num_threads()
