@@ -23,6 +23,7 @@ frames used; for the modulo decoder, the share of values more than 3 of its repo
     python benchmarks/bench_noise.py                 # all dev scenes, both noise models
     python benchmarks/bench_noise.py --limit 3       # a quick look
     python benchmarks/bench_noise.py --spatial       # the plan and decoder with spatial evidence
+    python benchmarks/bench_noise.py --frames 6 --modulo-only   # plans of at most 6 frames: frames against error
 """
 
 from __future__ import annotations
@@ -91,10 +92,17 @@ def blind_scores(batch: torch.Tensor, radiance: torch.Tensor, stops: int, noise:
 
 def modulo_plan(stops: int, noise: NoiseModel, args: argparse.Namespace) -> list[float]:
     """The noise-aware plan, the longest exposure normalised to 1: ``plan_exposures``, for the decoder with spatial
-    evidence with ``--spatial``."""
-    plan = tm.plan_exposures(
-        stops, 8, noise=noise, tolerance=args.tolerance, min_ratio=args.min_ratio, spatial=args.spatial
-    )
+    evidence with ``--spatial``; with ``--frames K``, the best plan of at most ``K`` exposures (``frames=``) where
+    that is fewer than the default plan's (a scene whose largest ratios need more than ``K`` takes the fewest they
+    need), else the default plan."""
+    options = {"tolerance": args.tolerance, "min_ratio": args.min_ratio, "spatial": args.spatial}
+    plan = tm.plan_exposures(stops, 8, noise=noise, **options)
+    for budget in range(min(args.frames, len(plan)), len(plan)) if args.frames else ():
+        try:
+            plan = tm.plan_exposures(stops, 8, noise=noise, frames=budget, **options)
+            break
+        except ValueError:  # even the largest ratios need more frames: one more
+            continue
     return [t / plan[-1] for t in plan]
 
 
@@ -153,6 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tolerance", type=float, default=1.2, help="plan_exposures tolerance")
     parser.add_argument("--min-ratio", type=float, default=1.5, help="plan_exposures min_ratio")
     parser.add_argument("--spatial", action="store_true", help="the plan and decoder with spatial evidence")
+    parser.add_argument("--frames", type=nonnegative_int, default=0, help="a frame budget per scene (0: none)")
     parser.add_argument("--modulo-only", action="store_true", help="skip the blind and intensity rows (faster)")
     parser.add_argument("--json", type=Path, help="also write the rows and summary here")
     args = parser.parse_args(argv)
