@@ -8,7 +8,9 @@ noise-aware plan (:func:`~torch_modulo.plan_exposures`), its predicted error
 predicted median error is as low (:func:`~torch_modulo.multishot.prediction.plan_conventional`), with its own
 prediction. ``torch-modulo design`` prints it.
 
-The predictions are models of the decoders; :func:`simulate_median` checks one against the library's own sensors
+The predictions are models of the default decoders (the modulo one decoding each pixel alone: what a scene gets
+whatever its texture; with spatial evidence a smooth scene needs fewer frames, docs/multishot.md);
+:func:`simulate_median` checks one against the library's own sensors
 and decoders on the same ramp of radiances (protocol D of the benchmarks), and :func:`plot` draws both sensors'
 predicted relative error against radiance (matplotlib, the optional extra ``torch_modulo[plot]``).
 

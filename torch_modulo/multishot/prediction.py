@@ -7,12 +7,14 @@ exposure. Per radiance ``E`` (``c = E + D`` with the dark counts ``D`` per unit 
 reads a count of variance ``V(t c)`` (:meth:`~torch_modulo.noise.NoiseModel.count_variance`): ``1/12`` of it is the
 counter's floor, a uniform error of one count, the rest the Gaussian charge noise ``V_g``.
 
-**Modulo sensor** (:func:`~torch_modulo.unwrap_multi` with ``noise=``): the decoder's walk under expected values,
-as the planner makes it. Frame ``i`` is decoded while ``s_i^2 = t_i^2 / W_{i-1} + V(t_i c) <= (2^N / (2 z))^2``,
-``W`` the running weight ``sum t_j^2 / V(t_j c)`` over the decoded frames (the estimate's variance is ``1 / W``);
-its rollover count is wrong with probability ``p_i = erfc(2^N / (2 sqrt(2) s_i))`` (the Gaussian tail past half a
-period), which shifts the estimate by about ``(w_i / W_i) 2^N / t_i``. The shortest frame rolls over itself with
-the probability that its charge reaches ``2^N``, which leaves the estimate a period low.
+**Modulo sensor** (:func:`~torch_modulo.unwrap_multi` with ``noise=``, each pixel decoded alone: the default; the
+decoder with spatial evidence does better on smooth scenes, by how much depends on the scene): the decoder's walk under
+expected values, as the planner makes it. Frame ``i`` is decoded while
+``s_i^2 = t_i^2 / W_{i-1} + V(t_i c) <= (2^N / (2 z))^2``, ``W`` the running weight ``sum t_j^2 / V(t_j c)`` over the
+decoded frames (the estimate's variance is ``1 / W``); its rollover count is wrong with probability
+``p_i = erfc(2^N / (2 sqrt(2) s_i))`` (the Gaussian tail past half a period), which shifts the estimate by about
+``(w_i / W_i) 2^N / t_i``. The shortest frame rolls over itself with the probability that its charge reaches ``2^N``,
+which leaves the estimate a period low.
 
 **Conventional sensor** (:func:`~torch_modulo.merge_intensity` with ``noise=``): the inverse-variance merge of the
 unsaturated frames. Frame ``i`` is unsaturated with probability ``P(t_i c + g < 2^N - 1)`` (``g`` the Gaussian
