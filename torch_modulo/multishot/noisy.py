@@ -199,7 +199,6 @@ def decode_noisy(
             raise ValueError(f"shape={shape} does not divide the {n} pixels of each frame into whole image planes")
         args = (float(2**bits), *gates(bits, sigmas), model, shape)
     if chunk_on_cpu(frames) and not torch.compiler.is_compiling() and n:
-        width = _CHUNK
         radiance = torch.empty((b, n), dtype=work)
         variance, used = torch.empty_like(radiance), torch.empty_like(radiance)
         # Item by item (each item's exposures as numbers), in chunks whose columns depend only on n: an item decodes
@@ -211,7 +210,7 @@ def decode_noisy(
                 outs = (radiance[rows], variance[rows], used[rows])
                 _decode_bands(frames[rows], exposures, t[rows], dark[rows], table[rows], args, shape, outs)
                 continue
-            for cols in column_chunks(n, 1, chunk=width, min_width=width):
+            for cols in column_chunks(n, 1, chunk=_CHUNK, min_width=_CHUNK):
                 out = _decode(frames[rows, :, cols].to(work), exposures, t[rows], dark[rows], table[rows], *args)
                 radiance[rows, cols], variance[rows, cols], used[rows, cols] = out
     else:

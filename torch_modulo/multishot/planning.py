@@ -41,7 +41,14 @@ from torch_modulo._checks import check_bits, check_flag, check_int, check_real
 from torch_modulo.multishot.spatial import PLANNED_SHRINK, WHOLE_SHARE, gates
 from torch_modulo.noise import NoiseModel, as_noise_model
 
-__all__ = ["brightest_unwrapped", "dark_rollover_message", "plan_exposures", "safe_ratio", "unsafe_ratio_message"]
+__all__ = [
+    "brightest_unwrapped",
+    "dark_rollover_message",
+    "plan_exposures",
+    "safe_ratio",
+    "spatial_safe_ratio",
+    "unsafe_ratio_message",
+]
 
 _MAX_FRAMES = 256
 
@@ -157,7 +164,7 @@ def _spatial_min_ratio(min_ratio: float, limit: float) -> float:
     return max(low, min_ratio)
 
 
-def _spatial_safe_ratio(bits: int, noise: NoiseModel, sigmas: float) -> float:
+def spatial_safe_ratio(bits: int, noise: NoiseModel, sigmas: float) -> float:
     """:func:`safe_ratio`'s ratio for the decoder with spatial evidence: the largest ratio whose next frame
     :func:`_spatial_ratio` says the gross-error-prone pixels (up to ``c_min`` counts) still decode."""
     _, c_min = safe_ratio(bits, noise, sigmas)
@@ -408,10 +415,8 @@ def _within_budget(
             f"frames={frames} is too few: {scene} needs {need} exposures even with ratios of max_ratio={limit:g}; "
             f"allow {need} frames, raise max_ratio or plan fewer stops"
         )
-    low, high = 0.0, 64.0  # log2 of the tolerance: too many frames at `low`; at `high` (unless None) within budget
-    best = make(2.0**high, frames)
-    if best is None:
-        return fewest
+    best = fewest
+    low, high = 0.0, 64.0  # log2 of the tolerance: too many frames at `low`; above `high` the plan is the fewest's
     for _ in range(40):
         mid = 0.5 * (low + high)
         found = make(2.0**mid, frames)

@@ -25,7 +25,7 @@ from torch_modulo._checks import (
 )
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
-from torch_modulo.multishot.planning import _spatial_safe_ratio, dark_rollover_message, unsafe_ratio_message
+from torch_modulo.multishot.planning import dark_rollover_message, spatial_safe_ratio, unsafe_ratio_message
 from torch_modulo.multishot.stack import neighbour_ratios, sort_stack, stack_exposures
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -60,7 +60,7 @@ def _warn_unsafe(
     worst = float(ratios.max())
     message: str | None
     if spatial:
-        limit = _spatial_safe_ratio(bits, noise, sigmas)
+        limit = spatial_safe_ratio(bits, noise, sigmas)
         if worst <= limit * (1 + 1e-9):
             return
         message = (
@@ -71,7 +71,7 @@ def _warn_unsafe(
         message = unsafe_ratio_message(worst, bits, noise, sigmas)
         if message is None:
             return
-        if worst <= _spatial_safe_ratio(bits, noise, sigmas) * (1 + 1e-9):  # a plan for the spatial decoder
+        if worst <= spatial_safe_ratio(bits, noise, sigmas) * (1 + 1e-9):  # a plan for the spatial decoder
             message += " (or decode with spatial=True, for which these ratios are safe)"
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)

@@ -180,9 +180,10 @@ def _solve_cells(
     first, info = _solve(planes[:, [r, g1, b]], spec, workers)
     second, info2 = _solve(planes[:, [r, g2, b]], spec, workers)
     order = [r, g1, b, g2]
-    out = torch.cat([first, second[:, 1:2]], dim=1)[:, [order.index(i) for i in range(4)]]
+    back = [order.index(i) for i in range(4)]  # the four solved planes back in the mosaic's order
+    out = torch.cat([first, second[:, 1:2]], dim=1)[:, back]
     if info.confidence is not None and info2.confidence is not None:
-        conf = torch.cat([info.confidence, info2.confidence[:, 1:2]], dim=1)[:, [order.index(i) for i in range(4)]]
+        conf = torch.cat([info.confidence, info2.confidence[:, 1:2]], dim=1)[:, back]
         info.confidence = merge_planes(conf).reshape(modulus.shape)
     info.seconds = info.seconds + info2.seconds
     return like_memory_format(merge_planes(out).reshape(modulus.shape), modulus), info

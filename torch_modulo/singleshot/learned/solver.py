@@ -222,11 +222,8 @@ def check_tile(value: object, name: str) -> int:
     return tile
 
 
-def _check_cuts(value: object, name: str) -> int:
-    return check_int(value, name, 0)
-
-
-def _check_threads(value: object, name: str) -> int:
+def _check_count(value: object, name: str) -> int:
+    """A whole number >= 0 (``max_cuts``, ``threads``)."""
     return check_int(value, name, 0)
 
 
@@ -243,10 +240,10 @@ def _check_threads(value: object, name: str) -> int:
 LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
     "weights": (None, check_weights),
     "levels": (True, check_levels),
-    "max_cuts": (0, _check_cuts),
+    "max_cuts": (0, _check_count),
     "augment": (False, check_flag),
     "tile": (TILE, check_tile),
-    "threads": (NETWORK_THREADS, _check_threads),
+    "threads": (NETWORK_THREADS, _check_count),
     "cells": (False, check_flag),
 }
 
