@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import pytest
 import torch
@@ -229,6 +230,51 @@ class TestFrameBudget:
             for k in (3, 4, 6, 9)
         ]
         assert all(b <= a * 1.02 for a, b in zip(medians, medians[1:], strict=False)), medians
+
+    @staticmethod
+    def _smallest_fitting(plan_at: Callable[[float], list[float]], frames: int, low: float, high: float) -> list[float]:
+        """The plan of the smallest value in [low, high] (bisection on its logarithm) with at most ``frames``."""
+        best = plan_at(high)
+        assert len(best) <= frames
+        low, high = math.log(low), math.log(high)
+        for _ in range(40):
+            mid = 0.5 * (low + high)
+            found = plan_at(math.exp(mid))
+            low, high, best = (mid, high, best) if len(found) > frames else (low, mid, found)
+        return best
+
+    @pytest.mark.parametrize(("noise", "stops", "frames"), [("q16", 20, 9), ("photon-counting", 20, 9)])
+    def test_a_budget_raises_the_smallest_ratio_before_the_tolerance(self, noise: str, stops: int, frames: int) -> None:
+        # Below the default's frames the budget takes the smallest min_ratio that fits: the brightest pixels end
+        # earlier, the rest keep their ratios. Raising the tolerance instead (the earlier rule) predicts worse.
+        from torch_modulo.multishot.prediction import predict_modulo
+
+        plan = tm.plan_exposures(stops, 8, noise=noise, longest=1.0, frames=frames)
+        tolerance = self._smallest_fitting(
+            lambda tol: tm.plan_exposures(stops, 8, noise=noise, longest=1.0, tolerance=tol), frames, 1.2, 2.0**40
+        )
+        default = tm.plan_exposures(stops, 8, noise=noise, longest=1.0)
+        assert len(default) > frames == len(plan) == len(tolerance)
+
+        def median(taus: list[float]) -> float:
+            return predict_modulo(taus, 8, noise, stops=stops).median_error
+
+        assert median(plan) < 0.8 * median(tolerance)
+        assert median(plan) < 2.0 * median(default)
+
+    def test_a_budget_past_what_blank_pixels_decode_raises_the_tolerance(self) -> None:
+        # q16, 24 stops in 4 frames: the smallest min_ratio that fits needs ratios after which a pixel that read
+        # nothing cannot decode the next frame, so every dark pixel would keep only the shortest frames; the budget
+        # raises the tolerance instead, whose ratios grow only as far as the dark pixels decode.
+        from torch_modulo.multishot.prediction import predict_modulo
+
+        plan = tm.plan_exposures(24, 8, noise="q16", longest=1.0, frames=4)
+        ratio = self._smallest_fitting(
+            lambda r: tm.plan_exposures(24, 8, noise="q16", longest=1.0, min_ratio=r), 4, 1.5, 255.0
+        )
+        assert len(plan) == len(ratio) == 4 and plan != ratio
+        first, second = (predict_modulo(taus, 8, "q16", stops=24) for taus in (plan, ratio))
+        assert first.gross_share < 0.75 * second.gross_share and first.median_error < 0.2 * second.median_error
 
     def test_a_budget_the_largest_ratios_cannot_meet_is_refused_with_the_count(self) -> None:
         with pytest.raises(ValueError, match=r"frames=1 is too few: stops=16 .* needs \d+ exposures even with"):

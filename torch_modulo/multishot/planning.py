@@ -15,14 +15,19 @@ moves down so that the last step is ``min_ratio`` (a shorter step decodes whatev
 that step is too short to give up the room, the last frame moves up to ``min_ratio`` times the one before (every
 pixel that needed it decodes that step, and the darkest read more than one count there).
 
-A budget of ``frames`` exposures: under noise, the plan is the one with the smallest ``tolerance`` (>= 1) whose plan
-has at most that many exposures, found by bisection on the tolerance (``min_ratio`` and ``max_ratio`` stay as given).
-A smaller tolerance only adds frames, each bringing the pixels that still need one closer to their oracle, so that
-plan is the nearest to every pixel's oracle the rule reaches within the budget; it has fewer frames than the budget
-where even ``tolerance=1`` needs fewer. Noise-free, every plan within ``max_ratio`` decodes exactly and the estimate
-is the longest frame's, so the plan is the fewest-frame one. Where even the largest ratios (an infinite tolerance)
-need more exposures than the budget, the planner says so and how many they need, rather than return a plan that
-does not cover the scene.
+A budget of ``frames`` exposures: under noise, where the plan of ``tolerance`` fits, the plan of the smallest
+tolerance (>= 1) that fits (a smaller tolerance only adds frames, each bringing the pixels that still need one closer
+to their oracle); where it does not, the plan of the smallest ``min_ratio`` that fits, at ``tolerance``. A larger
+smallest ratio ends the brightest pixels earlier, at a physical limit a little below their best, while every other
+ratio stays as large as the pixels that still need the next frame decode, so the dark and middle radiances keep
+their precision. (Raising the tolerance instead lets the ratios grow past what the middle radiances decode, which
+costs several times the median error and many more gross errors: docs/multishot.md, "Frames against error".) Only
+where that plan needs a ratio after which a pixel that read no signal cannot decode the next frame (every dark pixel
+would then keep only the shortest frames) does the budget raise the tolerance above ``tolerance`` instead: its
+ratios grow only as far as the dark pixels, which are then the ones still far from their oracle, decode.
+Noise-free, every plan within ``max_ratio`` decodes exactly and the estimate is the longest frame's, so the plan is
+the fewest-frame one. Where even the largest ratios need more exposures than the budget, the planner says so and how
+many they need, rather than return a plan that does not cover the scene.
 
 Both plans hold at most 256 exposures. Under noise the planning runs in a power-of-two unit near ``base`` (which
 changes no rounding), so any base within float64's range plans.
@@ -282,8 +287,10 @@ def plan_exposures(
     the shortest: the plan is then made with the base that ends it at ``longest``. Without dark current every plan
     is the ``base=1`` plan scaled, and ``longest`` gives exactly that plan times ``longest / plan[-1]``.
 
-    With ``frames=K`` the plan holds at most ``K`` exposures (see the module docstring for what it is): under noise
-    the one with the smallest tolerance that fits (``tolerance`` is then not used), noise-free the fewest-frame plan.
+    With ``frames=K`` the plan holds at most ``K`` exposures (see the module docstring for which): under noise the
+    one of the smallest tolerance down to 1 that fits, else of the smallest ``min_ratio`` that fits (or, where that
+    plan's ratios are past what a pixel that read no signal decodes, of the smallest larger tolerance); noise-free
+    the fewest-frame plan.
 
     Args:
         stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
@@ -372,16 +379,24 @@ def plan_exposures(
         unit = 2.0 ** (math.frexp(base)[1] - 1)
         scaled = dataclasses.replace(model, dark_current=model.dark_current * unit) if model.dark_current else model
 
-        def make(tol: float, most: int | None = None) -> list[float] | None:
+        def make(tol: float, ratio: float, most: int | None = None) -> list[float] | None:
             found = _noisy_plan(
-                stops, bits, base / unit, limit, scaled, sigmas, tol, min_ratio, model, most, spatial=spatial
+                stops, bits, base / unit, limit, scaled, sigmas, tol, ratio, model, most, spatial=spatial
             )
             return None if found is None else [t * unit for t in found]
 
         if frames is None:
-            plan = cast(list[float], make(tolerance))  # never None without a budget
+            plan = cast(list[float], make(tolerance, min_ratio))  # never None without a budget
         else:
-            plan = _within_budget(make, frames, f"stops={stops:g} at bits={bits} under {model}", limit)
+            # The largest ratio after which a pixel that read no signal in a frame still decodes the next one.
+            now, dark = torch.tensor(base / unit), torch.tensor(scaled.dark_counts, dtype=torch.float64)
+            blank = torch.tensor(scaled.count_variance(0.0) / (base / unit) ** 2, dtype=torch.float64)
+            if spatial:
+                reach = float(_spatial_ratio(now, dark, blank, scaled, bits, sigmas))
+            else:
+                reach = float(_largest_ratio(now, dark, blank, scaled, _gate(bits, sigmas)))
+            scene = f"stops={stops:g} at bits={bits} under {model}"
+            plan = _within_budget(make, frames, scene, tolerance, min_ratio, limit, reach)
         if not math.isfinite(plan[-1]):
             raise ValueError(
                 f"stops={stops:g} from base={base:g} under {model} needs exposures beyond float64's range (about "
@@ -400,31 +415,49 @@ def plan_exposures(
 
 
 def _within_budget(
-    make: Callable[[float, int | None], list[float] | None], frames: int, scene: str, limit: float
+    make: Callable[[float, float, int | None], list[float] | None],
+    frames: int,
+    scene: str,
+    tolerance: float,
+    min_ratio: float,
+    limit: float,
+    reach: float,
 ) -> list[float]:
-    """``make(tolerance, most)`` at the smallest tolerance >= 1 whose plan holds at most ``frames`` exposures, by
-    bisection on ``log2(tolerance)`` (an infinite tolerance takes the largest ratios: the fewest frames)."""
+    """``make(tolerance, min_ratio, most)`` within a budget of ``frames`` exposures (the module docstring): the
+    smallest tolerance from 1 up to ``tolerance`` whose plan fits, else the smallest ``min_ratio`` from ``min_ratio``
+    up to ``limit`` (which takes the largest ratios: the fewest frames) whose plan fits, unless that plan has a ratio
+    above ``reach``; then the smallest tolerance above ``tolerance`` whose plan fits. Each by bisection on its
+    logarithm (a tolerance of 2^64 plans as an infinite one: the fewest frames)."""
     frames = min(frames, _MAX_FRAMES)
-    plan = make(1.0, frames)
-    if plan is not None:
-        return plan
-    fewest = make(math.inf, frames)
-    if fewest is None:
-        need = len(make(math.inf, None) or [])
+
+    def smallest(fits: Callable[[float], list[float] | None], low: float, high: float) -> list[float] | None:
+        """The plan of the smallest value in [low, high] that ``fits`` (fewer frames as it grows), or None."""
+        best = fits(low)
+        if best is not None or low >= high:
+            return best
+        best = fits(high)
+        if best is None:
+            return None
+        low, high = math.log(low), math.log(high)  # too many frames at `low`; `high` fits
+        for _ in range(40):
+            mid = 0.5 * (low + high)
+            found = fits(math.exp(mid))
+            low, high, best = (mid, high, best) if found is None else (low, mid, found)
+        return best
+
+    plan = smallest(lambda tol: make(tol, min_ratio, frames), 1.0, tolerance)
+    plan = plan or smallest(lambda ratio: make(tolerance, ratio, frames), min_ratio, limit)
+    if plan is not None and max(b / a for a, b in zip(plan, plan[1:], strict=False)) > reach:
+        # Pixels that read nothing in a frame could not decode the next: every dark pixel would keep only the
+        # shortest frames. A larger tolerance instead lets each ratio grow only as far as the dark pixels decode.
+        plan = smallest(lambda tol: make(tol, min_ratio, frames), tolerance, 2.0**64)
+    if plan is None:
+        need = len(make(tolerance, limit, None) or [])
         raise ValueError(
             f"frames={frames} is too few: {scene} needs {need} exposures even with ratios of max_ratio={limit:g}; "
             f"allow {need} frames, raise max_ratio or plan fewer stops"
         )
-    best = fewest
-    low, high = 0.0, 64.0  # log2 of the tolerance: too many frames at `low`; above `high` the plan is the fewest's
-    for _ in range(40):
-        mid = 0.5 * (low + high)
-        found = make(2.0**mid, frames)
-        if found is None:
-            low = mid
-        else:
-            high, best = mid, found
-    return best
+    return plan
 
 
 def _noise_free_plan(stops: float, bits: int, base: float, limit: float) -> list[float]:
