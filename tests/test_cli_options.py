@@ -101,3 +101,26 @@ def test_crop_and_max_side_values() -> None:
     for bad in ("0", "1,2,3", "a", "-4"):
         with pytest.raises(argparse.ArgumentTypeError, match=f"expected a crop size H,W or N .*; got {bad!r}"):
             crop_size(bad)
+
+
+def test_spatial_options(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--spatial`` joins the options only when given; it needs a noise model, and multi shot for unwrap."""
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    args = parser.parse_args(["simulate", "i", "o", "--noise", "q16", "--spatial"])
+    assert JOB_OPTIONS["simulate"](args, commands["simulate"])["spatial"] is True
+    assert "spatial" not in JOB_OPTIONS["simulate"](parser.parse_args(["simulate", "i", "o"]), commands["simulate"])
+    for flag, value in (("--spatial", True), ("--no-spatial", False)):
+        args = parser.parse_args(["unwrap", "i", "o", flag])
+        assert JOB_OPTIONS["unwrap"](args, commands["unwrap"])["spatial"] is value
+    refused = (
+        (["simulate", "i", "o", "--noise", "none", "--spatial"], "it needs a noise model"),
+        (["unwrap", "i", "o", "--single", "--no-spatial"], "apply to multi shot only"),
+        (["unwrap", "i", "o", "--noise", "none", "--spatial"], "it needs a noise model"),
+        (["unwrap", "i", "o", "--method", "paper", "--spatial"], "--method robust"),
+    )
+    for argv, message in refused:
+        args = parser.parse_args(argv)
+        with pytest.raises(SystemExit):
+            JOB_OPTIONS[argv[0]](args, commands[argv[0]])
+        assert message in capsys.readouterr().err

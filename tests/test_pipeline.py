@@ -245,6 +245,62 @@ class TestScaling:
         assert info["accuracy"]["median_relative_error"] < 0.05
 
 
+class TestSpatial:
+    """``spatial``: simulate plans for the decoder with spatial evidence and records it; unwrap follows the record."""
+
+    OPTIONS = {"bits": 8, "exposures": "auto", "noise": "q16", "seed": 0, "scale": "auto", "format": "exr"}
+    UNWRAP = {"single": False, "bits": None, "exposure": None, "method": "robust", "solver": None}
+
+    def _scene(self, tmp_path: Path) -> Path:
+        y, x = torch.meshgrid(torch.linspace(0, 1, 32), torch.linspace(0, 1, 40), indexing="ij")
+        ramp = torch.exp2(14 * (0.6 * x + 0.4 * y))  # a smooth 14-stop scene
+        return _write(tmp_path / "s.exr", torch.stack([ramp, 0.7 * ramp, 0.4 * ramp]))
+
+    def test_a_spatial_plan_is_recorded_and_decoded_so(self, tmp_path: Path) -> None:
+        from torch_modulo.multishot import unwrap_multi
+
+        source = self._scene(tmp_path)
+        infos = {
+            spatial: simulate_job(
+                Task("s.exr", str(source), (str(tmp_path / f"stack{spatial}"),)),
+                {**self.OPTIONS, "truth": True, "spatial": spatial},
+            )
+            for spatial in (False, True)
+        }
+        assert infos[True]["spatial"] is True and "spatial" not in infos[False]
+        assert len(infos[True]["exposures"]) < len(infos[False]["exposures"])
+        stack = FileSensor(tmp_path / "stackTrue").read()
+        assert stack.metadata["spatial"] is True
+        assert "spatial" not in FileSensor(tmp_path / "stackFalse").read().metadata
+        task = Task("stack", str(tmp_path / "stackTrue"), (str(tmp_path / "r.exr"),))
+        info = unwrap_job(task, self.UNWRAP)  # spatial, as the stack records
+        assert info["spatial"] is True and info["accuracy"]["gross_share"] == 0.0 and "warnings" not in info
+        expected = unwrap_multi(stack.moduli, stack.exposures, 8, noise="q16", spatial=True)[0]
+        torch.testing.assert_close(read_image(tmp_path / "r.exr"), expected.float())
+        assert read_image(tmp_path / "r.exr", with_metadata=True)[1]["spatial"] is True
+        info = unwrap_job(task, {**self.UNWRAP, "spatial": False})  # per pixel, on request
+        assert "spatial" not in info
+        expected = unwrap_multi(stack.moduli, stack.exposures, 8, noise="q16")[0]
+        torch.testing.assert_close(read_image(tmp_path / "r.exr"), expected.float())
+
+    def test_a_mosaic_is_decoded_plane_by_plane(self, tmp_path: Path) -> None:
+        from torch.nn import functional as F
+
+        from torch_modulo.multishot import unwrap_multi
+
+        source = self._scene(tmp_path)
+        options = {**self.OPTIONS, "truth": True, "spatial": True, "cfa": "RGGB"}
+        simulate_job(Task("s.exr", str(source), (str(tmp_path / "stack"),)), options)
+        stack = FileSensor(tmp_path / "stack").read()
+        task = Task("stack", str(tmp_path / "stack"), (str(tmp_path / "r.exr"),))
+        info = unwrap_job(task, {**self.UNWRAP, "demosaic": False})
+        assert info["spatial"] is True and info["shape"] == [1, 32, 40] and info["accuracy"]["gross_share"] == 0.0
+        # Each colour plane is its own image: a photosite's neighbours are the nearest of its colour.
+        planes = F.pixel_unshuffle(stack.moduli[0], 2).unsqueeze(0)  # (1, M, 4, 16, 20)
+        decoded = unwrap_multi(planes, stack.exposures, 8, noise="q16", spatial=True)
+        torch.testing.assert_close(read_image(tmp_path / "r.exr"), F.pixel_shuffle(decoded, 2)[0].float())
+
+
 def test_importing_the_jobs_imports_neither_the_batch_engine_nor_the_command_line() -> None:
     code = (
         "import sys, torch_modulo.pipeline\n"

@@ -255,6 +255,10 @@ def simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> 
         options["max_side"] = args.max_side
     if args.crop is not None:
         options["crop"] = args.crop
+    if args.spatial:
+        if args.noise == "none":
+            sub.error("--spatial plans for the noise-aware decoder: it needs a noise model (not --noise none)")
+        options["spatial"] = True
     return _with_nonfinite(options, args.nonfinite)
 
 
@@ -276,6 +280,10 @@ def unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> di
         sub.error("--confidence applies to --single only")
     if args.noise is not None and args.single:
         sub.error("--noise applies to multi shot only (unwrap_single takes no noise model)")
+    if args.spatial is not None and args.single:
+        sub.error("--spatial/--no-spatial apply to multi shot only")
+    if args.spatial and (args.noise == "none" or args.method == "paper"):
+        sub.error("--spatial is noise-aware decoding: it needs a noise model and --method robust")
     if args.noise not in (None, "none") and args.method == "paper":
         sub.error(
             "--method paper decodes Eqs. 6-7 as printed and takes no noise model: use --method robust, or --noise none"
@@ -334,6 +342,8 @@ def unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> di
         options["cfa"] = args.cfa
     if not args.demosaic:
         options["demosaic"] = False
+    if args.spatial is not None:
+        options["spatial"] = args.spatial
     return options
 
 

@@ -61,7 +61,7 @@ def scene_stops(image: torch.Tensor) -> int:
 
 
 def plan_scene(
-    image: torch.Tensor, bits: int = 8, noise: NoiseSpec = None, *, scale: float | str = "auto"
+    image: torch.Tensor, bits: int = 8, noise: NoiseSpec = None, *, scale: float | str = "auto", spatial: bool = False
 ) -> tuple[list[float], float, int]:
     """Protocol N's exposures for one scene (``simulate --exposures auto``): ``(exposures, scale, stops)``.
 
@@ -72,7 +72,8 @@ def plan_scene(
     exposures that are captured: under dark current (electrons per unit exposure) a plan made at other exposures
     and rescaled would reason about the wrong dark counts; without it, this is the plan for ``base=1`` scaled to
     end at ``L``. Where the noise-free plan would put the brightest value exactly on the rollover at the shortest
-    exposure, one more stop is planned.
+    exposure, one more stop is planned. With ``spatial``, the plan is for the decoder with spatial evidence
+    (``plan_exposures(..., spatial=True)``: fewer frames, decoded with ``unwrap_multi(..., spatial=True)``).
 
     Args:
         image: radiance >= 0 with at least one positive value, any shape.
@@ -101,7 +102,7 @@ def plan_scene(
     factor = auto_scale if scale == "auto" else float(scale)
     longest = auto_scale / factor  # the 0.1th percentile reads 16 counts there
     for extra in (0, 1):
-        taus = plan_exposures(stops + extra, bits, noise=model, longest=longest)
+        taus = plan_exposures(stops + extra, bits, noise=model, longest=longest, spatial=spatial)
         if peak * factor * taus[0] * (1 + 1e-6) < 2**bits:
             break
     return taus, factor, stops + extra
@@ -224,25 +225,31 @@ def undecodable_ratio(taus: Sequence[float], bits: int) -> str | None:
     return None
 
 
-def unsafe_ratio_warnings(taus: Sequence[float], bits: int, noise: NoiseModel | None, image: torch.Tensor) -> list[str]:
-    """A warning when given exposures have a neighbouring ratio the noise model says is unsafe (naming a plan)."""
+def unsafe_ratio_warnings(
+    taus: Sequence[float], bits: int, noise: NoiseModel | None, image: torch.Tensor, spatial: bool = False
+) -> list[str]:
+    """A warning when given exposures have a neighbouring ratio the noise model says is unsafe for the decoder
+    (with ``spatial``, the one with spatial evidence), naming a plan."""
     if noise is None or noise.is_noiseless or len(taus) < 2:
         return []
     from torch_modulo.multishot import unsafe_ratio_message
 
     ordered = sorted(taus)
-    message = unsafe_ratio_message(max(b / a for a, b in zip(ordered, ordered[1:], strict=False)), bits, noise)
+    message = unsafe_ratio_message(
+        max(b / a for a, b in zip(ordered, ordered[1:], strict=False)), bits, noise, spatial=spatial
+    )
     if message is None:
         return []
     stops = scene_stops(image)
     try:  # what --exposures auto plans (the longest exposure 1: under dark current the count depends on it)
-        auto, _, stops = plan_scene(image, bits, noise)
+        auto, _, stops = plan_scene(image, bits, noise, spatial=spatial)
         plan = f"{len(auto)} exposures"
     except ValueError as error:
         plan = f"none possible: {error}"
+    flag = ", spatial=True" if spatial else ""
     return [
         f"{message}, e.g. --exposures auto (for this scene plan_exposures({stops}, bits={bits}, noise=noise, "
-        f"longest=1): {plan})"
+        f"longest=1{flag}): {plan})"
     ]
 
 

@@ -2,9 +2,9 @@
 
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
     torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N] [--cfa RGGB]
-                                 [--max-side N] [--crop H,W] [--linear]
+                                 [--max-side N] [--crop H,W] [--linear] [--spatial]
                                                     every HDR file in IN -> a modulo frame stack per scene in OUT
-    torch-modulo unwrap IN OUT [--single] [--noise MODEL] [--cfa RGGB] [--no-demosaic]
+    torch-modulo unwrap IN OUT [--single] [--noise MODEL] [--[no-]spatial] [--cfa RGGB] [--no-demosaic]
                                                     frame stacks (or single modulus images) -> radiance EXRs
     torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs (frames, confidence maps skipped)
     torch-modulo design --bits B --noise MODEL --stops S [--frames K] [--json] [--plot FILE]
@@ -219,6 +219,7 @@ _SIMULATE_DESCRIPTION = (
 _SIMULATE_EXAMPLES = (
     "examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
     "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
+    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --spatial          # about half the frames\n"
     "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
     "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
     "  torch-modulo simulate big_scenes/ small/ --max-side 512 --crop 256     # area-averaged, centre crop\n"
@@ -253,6 +254,13 @@ def _add_simulate(commands: Any) -> None:
         "cannot decode (default: off, such --exposures are a usage error and nothing is written)",
     )
     _add_noise(simulate, "the sensor's noise model (default: the first preset below)", "; the default, also 'default'")
+    simulate.add_argument(
+        "--spatial",
+        action="store_true",
+        help="plan for the decoder with spatial evidence (plan_exposures(..., spatial=True): about half the frames "
+        "under noise; given --exposures are checked against its safe ratio) and record it in each stack, so that "
+        "`torch-modulo unwrap` decodes it with spatial evidence (default: off, the per-pixel plan)",
+    )
     simulate.add_argument(
         "--seed",
         type=_nonnegative_int,
@@ -339,6 +347,7 @@ _UNWRAP_DESCRIPTION = (
 _UNWRAP_EXAMPLES = (
     "examples:\n  torch-modulo unwrap stacks/ radiance/\n"
     "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
+    "  torch-modulo unwrap stacks/ radiance/ --spatial         # neighbours' evidence (simulate --spatial: default)\n"
     "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
     "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
     "  torch-modulo unwrap big_frames/ radiance/ --single --bits 8 --method learned:levels=False   # faster\n"
@@ -382,6 +391,14 @@ def _add_unwrap(commands: Any) -> None:
         unwrap,
         "multi shot only: the sensor's noise model for noise-aware decoding (default: the model each stack records "
         "in its manifest, as simulate writes it; noise-free where a stack records none)",
+    )
+    unwrap.add_argument(
+        "--spatial",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="multi shot with a noise model: decode with spatial evidence (unwrap_multi(..., spatial=True); a "
+        "mosaic's colour planes apart), or not (--no-spatial) (default: as each stack records, spatial where "
+        "simulate --spatial planned it)",
     )
     unwrap.add_argument(
         "--confidence",

@@ -12,7 +12,8 @@ How ``simulate`` scales a scene and chooses its exposures (radiance in counts pe
   the benchmarks, the 0.1th percentile of the scene's positive values reads 16 counts at the longest exposure
   (1), the scene needs ``ceil(log2(max / that percentile) + 4)`` stops, and the exposures are
   :func:`~torch_modulo.plan_exposures` for those stops, the bit depth and the noise model with ``longest=1`` (so
-  that dark current is planned at the exposures captured; noise-free: the noise-free plan).
+  that dark current is planned at the exposures captured; noise-free: the noise-free plan); with ``spatial``, the
+  plan for the decoder with spatial evidence, which the stack then records for ``unwrap``.
 - **Given exposures, several** (:func:`fit_scale`): the brightest value reads ``2**bits - 1`` at the shortest
   exposure; under noise, the largest count whose noisy reading, with that exposure's dark counts, stays three
   standard deviations below the rollover. That frame does not roll over, as multi-shot unwrapping needs.
@@ -64,6 +65,7 @@ from torch_modulo.radiance import NONFINITE, RADIANCE_EXTENSIONS, load_radiance
 from torch_modulo.sensors.manifest import TRUTH_FILE  # the ground truth simulate writes; unwrap scores against it
 
 if TYPE_CHECKING:
+    from torch_modulo.noise import NoiseModel
     from torch_modulo.sensors import FrameStack
 
 __all__ = [
@@ -133,8 +135,12 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
 
     Options: ``bits``, ``exposures`` (``"auto"``: :func:`plan_scene`; or a list), ``noise`` (None, a preset name
     or :class:`~torch_modulo.sensors.NoiseModel` fields), ``seed``, ``scale`` (``"auto"`` or a number),
-    ``format``, ``truth`` and, optionally, ``nonfinite``, ``cfa``, ``linear``, ``force_exposures``, ``max_side``
-    and ``crop``. The scaling rules are in the module docstring.
+    ``format``, ``truth`` and, optionally, ``nonfinite``, ``cfa``, ``linear``, ``force_exposures``, ``max_side``,
+    ``crop`` and ``spatial``. The scaling rules are in the module docstring.
+
+    ``spatial`` (with a noise model): plan for the decoder with spatial evidence (about half the frames; given
+    exposures are checked against its safe ratio instead), and record ``"spatial": true`` in the stack's metadata,
+    so that :func:`unwrap_job` decodes it that way.
 
     ``max_side`` (an int) shrinks the scene first by area averaging, by the smallest integer factor that brings its
     longer side to at most that (:func:`torch_modulo.protocols.downsample_area`, as the benchmarks do); ``crop``
@@ -157,6 +163,8 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     bits = int(options["bits"])
     nonfinite = options.get("nonfinite", "replace")
     noise = noise_model(options["noise"])
+    # Spatial evidence needs a noise model (without one every ratio up to 2^bits - 1 decodes exactly).
+    spatial = check_flag(options.get("spatial", False), "spatial") and noise is not None and not noise.is_noiseless
     notes: list[str] = []
     if options["exposures"] != "auto" and (too_far := undecodable_ratio(options["exposures"], bits)):
         if not check_flag(options.get("force_exposures", False), "force_exposures"):
@@ -178,14 +186,14 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         notes += cropped
         facts["cfa"] = cfa
     if options["exposures"] == "auto":
-        taus, scale, facts["stops"] = plan_scene(image, bits, noise, scale=options["scale"])
+        taus, scale, facts["stops"] = plan_scene(image, bits, noise, scale=options["scale"], spatial=spatial)
         facts["scaling"] = "auto exposures (protocol N)"
     else:
         taus = [float(t) for t in options["exposures"]]
         fixed = options["scale"] != "auto"
         scale = float(options["scale"]) if fixed else fit_scale(image, bits, taus, noise)
         facts["scaling"] = "fixed" if fixed else ("single shot (protocol A)" if len(taus) == 1 else "below rollover")
-        notes += unsafe_ratio_warnings(taus, bits, noise, image)
+        notes += unsafe_ratio_warnings(taus, bits, noise, image, spatial=spatial)
     # Round to float32 first: radiance.exr (float32) then holds exactly the radiance the frames were captured from.
     radiance = (image * scale).float().double()
     seed = scene_seed(int(options["seed"]), task.name)
@@ -198,6 +206,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         "bits": bits,
         "exposures": taus,
         **facts,
+        **({"spatial": True} if spatial else {}),  # planned for the decoder with spatial evidence: unwrap uses it
     }
     dtype = torch.float32 if bits <= 24 else torch.float64
     stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind, cfa=stack.cfa)
@@ -220,6 +229,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         "exposures": taus,
         "noise": noise_name(noise),
         **facts,
+        **({"spatial": True} if spatial else {}),
         "negatives_clamped": counts["negative"],
     }
     info = _with_replaced(info, counts)
@@ -256,7 +266,7 @@ def _truth(folder: str | os.PathLike[str]) -> torch.Tensor | None:
 def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, Any], dict[str, Any]]:
     """Multi shot: rollover counting (noise-aware with a noise model) or the merge of an intensity stack; mosaics
     are unwrapped per photosite, then demosaiced."""
-    from torch_modulo.multishot import merge_intensity, unwrap_multi
+    from torch_modulo.multishot import merge_intensity
 
     stack = _read_stack(task.source, options["bits"])
     if stack.kind == "modulo" and stack.num_exposures == 1:  # counting needs two frames: it would return I_m / tau
@@ -270,6 +280,7 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
         noise = None  # every term off: the sensor read floor(tau E), which the noise-free rule decodes exactly
     notes: list[str] = []
     rule = options["method"]
+    spatial = False
     if stack.kind == "intensity":
         radiance = merge_intensity(stack.frames, stack.exposures, stack.bits, noise=noise)[0]
         rule = "merge_intensity"
@@ -280,9 +291,12 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
                 f"({noise_name(noise)}) was not used; --method robust decodes with it"
             )
             noise = None
+        choice = options.get("spatial")  # None: as the stack was planned
+        spatial = check_flag(stack.metadata.get("spatial", False) if choice is None else choice, "spatial")
+        spatial = spatial and noise is not None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            radiance = unwrap_multi(stack.moduli, stack.exposures, stack.bits, rule, noise=noise)[0]
+            radiance = _count_rollovers(stack, cfa, rule, noise, spatial)
         notes += [str(w.message) for w in caught]
     radiance, colour = restored_colour(radiance, cfa, demosaic=options.get("demosaic", True))
     metadata = {
@@ -291,19 +305,38 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
         "exposures": stack.exposure_matrix()[0].tolist(),
         "method": rule,
         "noise": noise.to_dict() if noise is not None else None,
+        **({"spatial": True} if spatial else {}),
         "kind": stack.kind,
         "unit": "counts per unit exposure",
         **colour,
     }
     if "radiance_scale" in stack.metadata:
         metadata["radiance_scale"] = stack.metadata["radiance_scale"]
-    info: dict[str, Any] = {"noise": noise_name(noise)}
+    info: dict[str, Any] = {"noise": noise_name(noise), **({"spatial": True} if spatial else {})}
     truth = matching_truth(_truth(task.source), radiance.shape, cfa)
     if truth is not None:
         info["accuracy"] = radiance_accuracy(radiance, truth)
     if notes:
         info["warnings"] = notes
     return radiance, metadata, info
+
+
+def _count_rollovers(
+    stack: FrameStack, cfa: str | None, rule: str, noise: NoiseModel | None, spatial: bool
+) -> torch.Tensor:
+    """The (C, H, W) radiance of a modulo stack by :func:`~torch_modulo.unwrap_multi`. With ``spatial`` a mosaic's
+    four colour planes are decoded apart, as half-resolution images (a photosite's neighbours of its own colour are
+    two pixels away), and put back."""
+    from torch.nn import functional as F
+
+    from torch_modulo.multishot import unwrap_multi
+
+    moduli = stack.moduli
+    if not (spatial and cfa is not None):
+        return unwrap_multi(moduli, stack.exposures, stack.bits, rule, noise=noise, spatial=spatial)[0]
+    b, m, c, h, w = moduli.shape  # a mosaic's sides are even (FrameStack and frame_cfa refuse others)
+    planes = F.pixel_unshuffle(moduli.reshape(b * m, c, h, w), 2).reshape(b, m, 4 * c, h // 2, w // 2)
+    return F.pixel_shuffle(unwrap_multi(planes, stack.exposures, stack.bits, rule, noise=noise, spatial=True), 2)[0]
 
 
 def _single_frame(
@@ -400,7 +433,10 @@ def unwrap_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     preset name or :class:`~torch_modulo.sensors.NoiseModel` fields), ``solver`` (the single-shot method; None:
     the default), ``confidence``, ``_solver_workers`` (processes of the single-shot solver) and, optionally,
     ``solver_options`` (keyword options of the method, JSON values), ``learned_version`` (recorded in the metadata;
-    it keeps outputs of an earlier ``"learned"`` from counting as complete), ``cfa`` and ``demosaic``.
+    it keeps outputs of an earlier ``"learned"`` from counting as complete), ``cfa``, ``demosaic`` and ``spatial``
+    (multi shot with a noise model: decode with spatial evidence, ``unwrap_multi(..., spatial=True)``; None or
+    absent: where the stack's metadata records ``"spatial": true``, as ``simulate_job`` writes it for a spatial plan;
+    a mosaic's colour planes are then decoded apart).
 
     With ``single``, the input is a modulus image or a frame stack of one exposure (as ``simulate`` writes it).
     Where a stack holds its ground truth (:data:`TRUTH_FILE`), the result is scored against it: single shot by

@@ -516,8 +516,11 @@ def safe_ratio(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> tuple[float
     return float(ratio), c_min
 
 
-def unsafe_ratio_message(worst: float, bits: int, noise: NoiseModel, sigmas: float = 3.0) -> str | None:
-    """Why a largest neighbouring ratio ``worst`` is unsafe under ``noise`` (see :func:`safe_ratio`), or None if safe.
+def unsafe_ratio_message(
+    worst: float, bits: int, noise: NoiseModel, sigmas: float = 3.0, spatial: bool = False
+) -> str | None:
+    """Why a largest neighbouring ratio ``worst`` is unsafe under ``noise`` (see :func:`safe_ratio`; with
+    ``spatial``, for the decoder with spatial evidence: :func:`spatial_safe_ratio`), or None if safe.
 
     Callers add what to use instead.
 
@@ -526,10 +529,19 @@ def unsafe_ratio_message(worst: float, bits: int, noise: NoiseModel, sigmas: flo
         True
         >>> unsafe_ratio_message(256.0, 8, NoiseModel()).startswith("exposure ratio 256 is unsafe")
         True
+        >>> unsafe_ratio_message(12.0, 8, NoiseModel(), spatial=True) is None
+        True
     """
     ratio, c_min = safe_ratio(bits, noise, sigmas)
+    if spatial:
+        ratio = spatial_safe_ratio(bits, noise, sigmas)
     if worst <= ratio * (1 + 1e-9):
         return None
+    if spatial:
+        return (
+            f"exposure ratio {worst:g} is unsafe under {noise} even with spatial evidence: dark pixels cannot be "
+            f"decoded in the longer frame and keep errors of 50% or more; keep ratios <= {ratio:.3g}"
+        )
     return (
         f"exposure ratio {worst:g} is unsafe under {noise}: pixels that read up to {c_min:.0f} counts in the "
         f"shorter frame cannot be decoded in the longer one and keep errors of 50% or more; keep ratios <= "

@@ -25,7 +25,7 @@ from torch_modulo._checks import (
 )
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
-from torch_modulo.multishot.planning import dark_rollover_message, spatial_safe_ratio, unsafe_ratio_message
+from torch_modulo.multishot.planning import dark_rollover_message, unsafe_ratio_message
 from torch_modulo.multishot.stack import neighbour_ratios, sort_stack, stack_exposures
 from torch_modulo.noise import NoiseModel, as_noise_model
 
@@ -58,21 +58,11 @@ def _warn_unsafe(
     if not ratios.numel():
         return
     worst = float(ratios.max())
-    message: str | None
-    if spatial:
-        limit = spatial_safe_ratio(bits, noise, sigmas)
-        if worst <= limit * (1 + 1e-9):
-            return
-        message = (
-            f"exposure ratio {worst:g} is unsafe under {noise} even with spatial evidence: dark pixels cannot be "
-            f"decoded in the longer frame and keep errors of 50% or more; keep ratios <= {limit:.3g}"
-        )
-    else:
-        message = unsafe_ratio_message(worst, bits, noise, sigmas)
-        if message is None:
-            return
-        if worst <= spatial_safe_ratio(bits, noise, sigmas) * (1 + 1e-9):  # a plan for the spatial decoder
-            message += " (or decode with spatial=True, for which these ratios are safe)"
+    message = unsafe_ratio_message(worst, bits, noise, sigmas, spatial=spatial)
+    if message is None:
+        return
+    if not spatial and unsafe_ratio_message(worst, bits, noise, sigmas, spatial=True) is None:
+        message += " (or decode with spatial=True, for which these ratios are safe)"  # a plan for the spatial decoder
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)
     plan = f"plan_exposures({stops}, bits={bits}, noise=noise{', spatial=True' if spatial else ''})"
@@ -246,7 +236,8 @@ def unwrap_multi(
         spatial: with ``noise``: predict each pixel's next count from the mean of its agreeing 3 x 3 neighbours in
             its image plane (:mod:`torch_modulo.multishot.spatial`), so that the larger ratios of a spatial plan
             (``plan_exposures(..., noise=..., spatial=True)``) decode; False (the default) decodes every pixel
-            alone. Without ``noise`` it changes nothing.
+            alone. Without ``noise`` it changes nothing. A mosaic's neighbours are other colours: decode its colour
+            planes apart (``torch.nn.functional.pixel_unshuffle(frames, 2)``, as ``torch-modulo unwrap`` does).
         return_counts: return the counts at the longest exposure instead of radiance (without noise the integer
             counts ``I = I_m + k 2^N``; with noise the estimate's expected count ``tau_max E``).
         return_variance: also return the variance of the radiance (or counts) from the noise model (requires
