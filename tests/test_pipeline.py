@@ -282,6 +282,8 @@ class TestSpatial:
         assert "spatial" not in info
         expected = unwrap_multi(stack.moduli, stack.exposures, 8, noise="q16")[0]
         torch.testing.assert_close(read_image(tmp_path / "r.exr"), expected.float())
+        info = unwrap_job(task, {**self.UNWRAP, "spatial": True, "noise": None})  # no model: noise-free, said
+        assert "spatial" not in info and "decoded noise-free" in info["warnings"][0]
 
     def test_a_mosaic_is_decoded_plane_by_plane(self, tmp_path: Path) -> None:
         from torch.nn import functional as F

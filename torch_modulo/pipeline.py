@@ -293,7 +293,9 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
             noise = None
         choice = options.get("spatial")  # None: as the stack was planned
         spatial = check_flag(stack.metadata.get("spatial", False) if choice is None else choice, "spatial")
-        spatial = spatial and noise is not None
+        if spatial and noise is None:
+            notes.append("spatial evidence is noise-aware decoding, and no noise model was given: decoded noise-free")
+            spatial = False
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             radiance = _count_rollovers(stack, cfa, rule, noise, spatial)
