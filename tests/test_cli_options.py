@@ -117,7 +117,8 @@ def test_spatial_options(capsys: pytest.CaptureFixture[str]) -> None:
         (["simulate", "i", "o", "--noise", "none", "--spatial"], "it needs a noise model"),
         (["unwrap", "i", "o", "--single", "--no-spatial"], "apply to multi shot only"),
         (["unwrap", "i", "o", "--noise", "none", "--spatial"], "it needs a noise model"),
-        (["unwrap", "i", "o", "--method", "paper", "--spatial"], "--method robust"),
+        (["unwrap", "i", "o", "--method", "paper", "--spatial"], "got --method paper"),
+        (["simulate", "i", "o", "--exposures", "4", "--spatial"], "got one exposure, --exposures 4"),
     )
     for argv, message in refused:
         args = parser.parse_args(argv)

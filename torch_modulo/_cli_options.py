@@ -257,7 +257,9 @@ def simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> 
         options["crop"] = args.crop
     if args.spatial:
         if args.noise == "none":
-            sub.error("--spatial plans for the noise-aware decoder: it needs a noise model (not --noise none)")
+            sub.error("--spatial plans for the noise-aware decoder: it needs a noise model; got --noise none")
+        if args.exposures != "auto" and len(args.exposures) < 2:
+            sub.error(f"--spatial plans multi-shot stacks; got one exposure, --exposures {args.exposures[0]:g}")
         options["spatial"] = True
     return _with_nonfinite(options, args.nonfinite)
 
@@ -282,8 +284,10 @@ def unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> di
         sub.error("--noise applies to multi shot only (unwrap_single takes no noise model)")
     if args.spatial is not None and args.single:
         sub.error("--spatial/--no-spatial apply to multi shot only")
-    if args.spatial and (args.noise == "none" or args.method == "paper"):
-        sub.error("--spatial is noise-aware decoding: it needs a noise model and --method robust")
+    if args.spatial and args.noise == "none":
+        sub.error("--spatial is noise-aware decoding: it needs a noise model; got --noise none")
+    if args.spatial and args.method == "paper":
+        sub.error("--spatial is noise-aware decoding, which --method paper does not do; got --method paper")
     if args.noise not in (None, "none") and args.method == "paper":
         sub.error(
             "--method paper decodes Eqs. 6-7 as printed and takes no noise model: use --method robust, or --noise none"

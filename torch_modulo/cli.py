@@ -257,9 +257,9 @@ def _add_simulate(commands: Any) -> None:
     simulate.add_argument(
         "--spatial",
         action="store_true",
-        help="plan for the decoder with spatial evidence (plan_exposures(..., spatial=True): about half the frames "
-        "under noise; given --exposures are checked against its safe ratio) and record it in each stack, so that "
-        "`torch-modulo unwrap` decodes it with spatial evidence (default: off, the per-pixel plan)",
+        help="with a noise model: plan for the decoder with spatial evidence (plan_exposures(..., spatial=True): "
+        "about half the frames; given --exposures are checked against its safe ratio) and record it in each stack, "
+        "so that `torch-modulo unwrap` decodes it with spatial evidence (default: off, the per-pixel plan)",
     )
     simulate.add_argument(
         "--seed",
@@ -347,7 +347,7 @@ _UNWRAP_DESCRIPTION = (
 _UNWRAP_EXAMPLES = (
     "examples:\n  torch-modulo unwrap stacks/ radiance/\n"
     "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
-    "  torch-modulo unwrap stacks/ radiance/ --spatial         # neighbours' evidence (simulate --spatial: default)\n"
+    "  torch-modulo unwrap stacks/ radiance/ --spatial         # spatial evidence for every noisy stack\n"
     "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
     "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
     "  torch-modulo unwrap big_frames/ radiance/ --single --bits 8 --method learned:levels=False   # faster\n"

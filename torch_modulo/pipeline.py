@@ -163,9 +163,11 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     bits = int(options["bits"])
     nonfinite = options.get("nonfinite", "replace")
     noise = noise_model(options["noise"])
-    # Spatial evidence needs a noise model (without one every ratio up to 2^bits - 1 decodes exactly).
-    spatial = check_flag(options.get("spatial", False), "spatial") and noise is not None and not noise.is_noiseless
     notes: list[str] = []
+    spatial = check_flag(options.get("spatial", False), "spatial")
+    if spatial and (noise is None or noise.is_noiseless):  # without noise every ratio up to 2^bits - 1 decodes
+        notes.append("spatial: no noise model, so the noise-free plan (spatial evidence is noise-aware decoding)")
+        spatial = False
     if options["exposures"] != "auto" and (too_far := undecodable_ratio(options["exposures"], bits)):
         if not check_flag(options.get("force_exposures", False), "force_exposures"):
             raise ValueError(
@@ -206,7 +208,8 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         "bits": bits,
         "exposures": taus,
         **facts,
-        **({"spatial": True} if spatial else {}),  # planned for the decoder with spatial evidence: unwrap uses it
+        # Planned for the decoder with spatial evidence: unwrap decodes it so (one frame has nothing to decode).
+        **({"spatial": True} if spatial and len(taus) > 1 else {}),
     }
     dtype = torch.float32 if bits <= 24 else torch.float64
     stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind, cfa=stack.cfa)
@@ -229,7 +232,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         "exposures": taus,
         "noise": noise_name(noise),
         **facts,
-        **({"spatial": True} if spatial else {}),
+        **({"spatial": True} if spatial and len(taus) > 1 else {}),
         "negatives_clamped": counts["negative"],
     }
     info = _with_replaced(info, counts)
@@ -284,6 +287,8 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
     if stack.kind == "intensity":
         radiance = merge_intensity(stack.frames, stack.exposures, stack.bits, noise=noise)[0]
         rule = "merge_intensity"
+        if options.get("spatial"):
+            notes.append("spatial evidence is for modulo stacks: this intensity stack was merged as it is")
     else:
         if noise is not None and rule == "paper":
             notes.append(
@@ -294,7 +299,7 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
         choice = options.get("spatial")  # None: as the stack was planned
         spatial = check_flag(stack.metadata.get("spatial", False) if choice is None else choice, "spatial")
         if spatial and noise is None:
-            notes.append("spatial evidence is noise-aware decoding, and no noise model was given: decoded noise-free")
+            notes.append("spatial evidence is noise-aware decoding, and no noise model is used: decoded noise-free")
             spatial = False
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")

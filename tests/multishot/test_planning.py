@@ -10,6 +10,7 @@ import torch
 from multishot_helpers import scene, stack
 
 import torch_modulo as tm
+from torch_modulo.noise import NoiseModel, as_noise_model
 
 
 class TestPlanExposures:
@@ -255,6 +256,10 @@ class TestFrameBudget:
         )
         default = tm.plan_exposures(stops, 8, noise=noise, longest=1.0)
         assert len(default) > frames == len(plan) == len(tolerance)
+        ratio = self._smallest_fitting(
+            lambda r: tm.plan_exposures(stops, 8, noise=noise, longest=1.0, min_ratio=r), frames, 1.5, 40.0
+        )
+        assert plan == pytest.approx(ratio, rel=1e-9)  # the smallest min_ratio that fits
 
         def median(taus: list[float]) -> float:
             return predict_modulo(taus, 8, noise, stops=stops).median_error
@@ -275,6 +280,26 @@ class TestFrameBudget:
         assert len(plan) == len(ratio) == 4 and plan != ratio
         first, second = (predict_modulo(taus, 8, "q16", stops=24) for taus in (plan, ratio))
         assert first.gross_share < 0.75 * second.gross_share and first.median_error < 0.2 * second.median_error
+
+    def test_spare_frames_lower_the_tolerance(self) -> None:
+        default = tm.plan_exposures(20, 8, noise="q16", longest=1.0)
+        closest = tm.plan_exposures(20, 8, noise="q16", longest=1.0, tolerance=1.0)
+        assert len(closest) > len(default)
+        assert tm.plan_exposures(20, 8, noise="q16", longest=1.0, frames=len(closest)) == closest
+        assert tm.plan_exposures(20, 8, noise="q16", longest=1.0, frames=len(closest) + 5) == closest
+
+    @pytest.mark.parametrize(("noise", "spatial"), [("q16", True), (NoiseModel(dark_current=40.0), False)])
+    def test_budgets_for_spatial_plans_and_dark_current(self, noise: NoiseModel | str, spatial: bool) -> None:
+        model = as_noise_model(noise)
+        assert model is not None
+        needed = 2.0**20 / tm.multishot.brightest_unwrapped(8, model, exposure=1.0)  # E_min reads one count there
+        default = tm.plan_exposures(20, 8, noise=model, spatial=spatial)
+        for frames in range(3, len(default)):
+            plan = tm.plan_exposures(20, 8, noise=model, spatial=spatial, frames=frames)
+            assert len(plan) <= frames and plan[0] == 1.0 and plan[-1] >= needed * (1 - 1e-9)
+
+    def test_a_budget_of_a_scene_one_frame_covers(self) -> None:
+        assert tm.plan_exposures(4, 8, noise="q16", frames=3) == [1.0] == tm.plan_exposures(4, 8, noise="q16")
 
     def test_a_budget_the_largest_ratios_cannot_meet_is_refused_with_the_count(self) -> None:
         with pytest.raises(ValueError, match=r"frames=1 is too few: stops=16 .* needs \d+ exposures even with"):

@@ -21,10 +21,11 @@ to their oracle); where it does not, the plan of the smallest ``min_ratio`` that
 smallest ratio ends the brightest pixels earlier, at a physical limit a little below their best, while every other
 ratio stays as large as the pixels that still need the next frame decode, so the dark and middle radiances keep
 their precision. (Raising the tolerance instead lets the ratios grow past what the middle radiances decode, which
-costs several times the median error and many more gross errors: docs/multishot.md, "Frames against error".) Only
-where that plan needs a ratio after which a pixel that read no signal cannot decode the next frame (every dark pixel
-would then keep only the shortest frames) does the budget raise the tolerance above ``tolerance`` instead: its
-ratios grow only as far as the dark pixels, which are then the ones still far from their oracle, decode.
+costs several times the median error and many more gross errors: docs/multishot.md, "Frames against error".) The
+smallest ratio is raised only up to the ratio after which a pixel that read no signal in the shortest frame cannot
+decode the next one (beyond it every dark pixel would keep only the shortest frames); where no plan up to there
+fits, the budget raises the tolerance above ``tolerance`` instead, which takes ratios as large as the pixels still
+far from their oracle (the darkest first) decode, and past that the largest ratios.
 Noise-free, every plan within ``max_ratio`` decodes exactly and the estimate is the longest frame's, so the plan is
 the fewest-frame one. Where even the largest ratios need more exposures than the budget, the planner says so and how
 many they need, rather than return a plan that does not cover the scene.
@@ -288,9 +289,9 @@ def plan_exposures(
     is the ``base=1`` plan scaled, and ``longest`` gives exactly that plan times ``longest / plan[-1]``.
 
     With ``frames=K`` the plan holds at most ``K`` exposures (see the module docstring for which): under noise the
-    one of the smallest tolerance down to 1 that fits, else of the smallest ``min_ratio`` that fits (or, where that
-    plan's ratios are past what a pixel that read no signal decodes, of the smallest larger tolerance); noise-free
-    the fewest-frame plan.
+    one of the smallest tolerance down to 1 that fits, else of the smallest ``min_ratio`` that fits (up to the ratio
+    a pixel that read no signal still decodes), else of the smallest larger tolerance; noise-free the fewest-frame
+    plan.
 
     Args:
         stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
@@ -388,9 +389,11 @@ def plan_exposures(
         if frames is None:
             plan = cast(list[float], make(tolerance, min_ratio))  # never None without a budget
         else:
-            # The largest ratio after which a pixel that read no signal in a frame still decodes the next one.
-            now, dark = torch.tensor(base / unit), torch.tensor(scaled.dark_counts, dtype=torch.float64)
-            blank = torch.tensor(scaled.count_variance(0.0) / (base / unit) ** 2, dtype=torch.float64)
+            # The largest ratio after which a pixel that read no signal (its dark counts alone) in the shortest
+            # frame still decodes the next one.
+            now = torch.tensor(base / unit, dtype=torch.float64)
+            dark = torch.tensor(scaled.dark_counts, dtype=torch.float64)
+            blank = torch.tensor(scaled.count_variance(float(now * dark)), dtype=torch.float64) / now**2
             if spatial:
                 reach = float(_spatial_ratio(now, dark, blank, scaled, bits, sigmas))
             else:
@@ -424,10 +427,10 @@ def _within_budget(
     reach: float,
 ) -> list[float]:
     """``make(tolerance, min_ratio, most)`` within a budget of ``frames`` exposures (the module docstring): the
-    smallest tolerance from 1 up to ``tolerance`` whose plan fits, else the smallest ``min_ratio`` from ``min_ratio``
-    up to ``limit`` (which takes the largest ratios: the fewest frames) whose plan fits, unless that plan has a ratio
-    above ``reach``; then the smallest tolerance above ``tolerance`` whose plan fits. Each by bisection on its
-    logarithm (a tolerance of 2^64 plans as an infinite one: the fewest frames)."""
+    smallest tolerance from 1 up to ``tolerance`` whose plan fits; else the smallest ``min_ratio`` from ``min_ratio``
+    up to ``reach`` (and ``limit``) whose plan fits; else the smallest tolerance above ``tolerance`` whose plan fits.
+    Each by bisection on its logarithm (a tolerance of 2^64 plans as an infinite one: the largest ratios, the fewest
+    frames)."""
     frames = min(frames, _MAX_FRAMES)
 
     def smallest(fits: Callable[[float], list[float] | None], low: float, high: float) -> list[float] | None:
@@ -446,10 +449,13 @@ def _within_budget(
         return best
 
     plan = smallest(lambda tol: make(tol, min_ratio, frames), 1.0, tolerance)
-    plan = plan or smallest(lambda ratio: make(tolerance, ratio, frames), min_ratio, limit)
-    if plan is not None and max(b / a for a, b in zip(plan, plan[1:], strict=False)) > reach:
-        # Pixels that read nothing in a frame could not decode the next: every dark pixel would keep only the
-        # shortest frames. A larger tolerance instead lets each ratio grow only as far as the dark pixels decode.
+    if plan is None and min_ratio <= reach:
+        # Above `reach` a pixel that read nothing in a frame could not decode the next: every dark pixel would keep
+        # only the shortest frames. (The last step of a plan may be longer than its smallest ratio.)
+        plan = smallest(lambda ratio: make(tolerance, ratio, frames), min_ratio, min(limit, reach))
+        if plan is not None and max((b / a for a, b in zip(plan, plan[1:], strict=False)), default=1.0) > reach:
+            plan = None
+    if plan is None:  # the tolerance lets each ratio grow as far as the pixels still far from their oracle decode
         plan = smallest(lambda tol: make(tol, min_ratio, frames), tolerance, 2.0**64)
     if plan is None:
         need = len(make(tolerance, limit, None) or [])
