@@ -40,9 +40,9 @@ def _stack() -> tm.ExposureStack:
     return tm.MultiExposureCapture(TAUS, bits=8)(_x())
 
 
-def _noisy() -> tuple[torch.Tensor, torch.Tensor]:
-    """Noisy moduli of a noise-aware plan and its exposures, for the noise-aware decoder."""
-    plan = tm.plan_exposures(12, 8, noise="q16")
+def _noisy(spatial: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Noisy moduli of a noise-aware plan (for the decoder with spatial evidence: ``spatial``) and its exposures."""
+    plan = tm.plan_exposures(12, 8, noise="q16", spatial=spatial)
     taus = torch.tensor(plan, dtype=torch.float64) / plan[-1]
     radiance = _x() * 2.0**6 / float(taus[0])
     return tm.sensors.SimulatedModuloSensor(8, "q16", seed=0)(radiance, taus).moduli, taus
@@ -64,6 +64,11 @@ CASES: dict[str, tuple[Callable[[], nn.Module], Callable[[], tuple[object, ...]]
         True,
     ),
     "MultiExposureUnwrap-noise": (lambda: tm.MultiExposureUnwrap(bits=8, noise="q16"), lambda: _noisy(), False),
+    "MultiExposureUnwrap-spatial": (
+        lambda: tm.MultiExposureUnwrap(bits=8, noise="q16", spatial=True),
+        lambda: _noisy(spatial=True),
+        False,
+    ),
     "GammaToneMap": (lambda: tm.GammaToneMap(), lambda: (_x(),), False),
     "GammaToneMap-percentile-srgb": (
         lambda: tm.GammaToneMap(gamma=1.0, exposure=-1.5, percentile=99.0, srgb=True),
@@ -100,7 +105,15 @@ class TestFullGraph:
         _assert_same(out, layer(*args), exact)
 
     @pytest.mark.parametrize(
-        "name", ["ModuloCapture", "MultiExposureCapture", "chain", "LogToneMap", "ReinhardToneMap"]
+        "name",
+        [
+            "ModuloCapture",
+            "MultiExposureCapture",
+            "chain",
+            "LogToneMap",
+            "ReinhardToneMap",
+            "MultiExposureUnwrap-spatial",
+        ],
     )
     def test_aot_eager(self, name: str) -> None:
         make, inputs, exact = CASES[name]
@@ -114,6 +127,7 @@ class TestFullGraph:
             "MultiExposureCapture",
             "MultiExposureUnwrap",
             "MultiExposureUnwrap-noise",
+            "MultiExposureUnwrap-spatial",
             "LogToneMap",
         ):
             make, inputs, _ = CASES[name]
@@ -153,7 +167,7 @@ class TestFullGraph:
     @pytest.mark.slow
     def test_inductor(self) -> None:
         names = ("ModuloWrap", "ModuloCapture", "MultiExposureCapture", "chain", "GammaToneMap", "LogToneMap")
-        for name in (*names, "MultiExposureUnwrap-noise"):
+        for name in (*names, "MultiExposureUnwrap-noise", "MultiExposureUnwrap-spatial"):
             make, inputs, exact = CASES[name]
             layer, args = make(), inputs()
             out = torch.compile(layer, fullgraph=True)(*args)

@@ -30,7 +30,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-__all__ = ["PLANNED_SHRINK", "RADIUS", "WHOLE_SHARE", "gates", "neighbour_prediction"]
+__all__ = ["PLANNED_SHRINK", "RADIUS", "WHOLE_SHARE", "gates", "neighbour_prediction", "stored"]
 
 #: With spatial evidence, the whole spread of a predicted count (prediction and the frame's own noise) is gated at
 #: this share of ``sigmas`` deviations (2 at the default 3): wrong rollover counts from the frame's own noise cost
@@ -51,13 +51,14 @@ RADIUS = max(max(abs(dy), abs(dx)) for dy, dx in _PAIRS)
 
 
 @torch.library.custom_op("torch_modulo::spatial_buffer", mutates_args=())
-def _buffer(x: torch.Tensor) -> torch.Tensor:
-    """A copy of ``x``, which ``torch.compile`` cannot see through: it stores the estimates the neighbours read, where
-    it would otherwise recompute the whole walk over the frames before for each neighbour."""
+def stored(x: torch.Tensor) -> torch.Tensor:
+    """A copy of ``x``, which ``torch.compile`` cannot see through: the decoder stores what the neighbours read (the
+    estimates, and the running sums they come from) each frame, where fused code would otherwise recompute the whole
+    walk over the frames before for each neighbour."""
     return x.clone()
 
 
-@_buffer.register_fake
+@stored.register_fake
 def _(x: torch.Tensor) -> torch.Tensor:
     return torch.empty_like(x)
 
@@ -87,7 +88,7 @@ def neighbour_prediction(
     """
     h, w = shape
     if torch.compiler.is_compiling():  # read the neighbours from a buffer, not by recomputing the frames before
-        estimate = _buffer(estimate)
+        estimate = stored(estimate)
     e = estimate.reshape(-1, h, w)
     v = variance.reshape(-1, h, w)
     # |E_q - E_p| <= a sqrt(2 Var(E_p)): the test with Var(E_q) taken as Var(E_p), as on a locally flat radiance.
