@@ -65,7 +65,6 @@ from torch_modulo.radiance import NONFINITE, RADIANCE_EXTENSIONS, load_radiance
 from torch_modulo.sensors.manifest import TRUTH_FILE  # the ground truth simulate writes; unwrap scores against it
 
 if TYPE_CHECKING:
-    from torch_modulo.noise import NoiseModel
     from torch_modulo.sensors import FrameStack
 
 __all__ = [
@@ -269,7 +268,7 @@ def _truth(folder: str | os.PathLike[str]) -> torch.Tensor | None:
 def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, Any], dict[str, Any]]:
     """Multi shot: rollover counting (noise-aware with a noise model) or the merge of an intensity stack; mosaics
     are unwrapped per photosite, then demosaiced."""
-    from torch_modulo.multishot import merge_intensity
+    from torch_modulo.multishot import merge_intensity, unwrap_multi
 
     stack = _read_stack(task.source, options["bits"])
     if stack.kind == "modulo" and stack.num_exposures == 1:  # counting needs two frames: it would return I_m / tau
@@ -303,7 +302,9 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
             spatial = False
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            radiance = _count_rollovers(stack, cfa, rule, noise, spatial)
+            radiance = unwrap_multi(
+                stack.moduli, stack.exposures, stack.bits, rule, noise=noise, spatial=spatial, cfa=cfa
+            )[0]
         notes += [str(w.message) for w in caught]
     radiance, colour = restored_colour(radiance, cfa, demosaic=options.get("demosaic", True))
     metadata = {
@@ -326,24 +327,6 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
     if notes:
         info["warnings"] = notes
     return radiance, metadata, info
-
-
-def _count_rollovers(
-    stack: FrameStack, cfa: str | None, rule: str, noise: NoiseModel | None, spatial: bool
-) -> torch.Tensor:
-    """The (C, H, W) radiance of a modulo stack by :func:`~torch_modulo.unwrap_multi`. With ``spatial`` a mosaic's
-    four colour planes are decoded apart, as half-resolution images (a photosite's neighbours of its own colour are
-    two pixels away), and put back."""
-    from torch.nn import functional as F
-
-    from torch_modulo.multishot import unwrap_multi
-
-    moduli = stack.moduli
-    if not (spatial and cfa is not None):
-        return unwrap_multi(moduli, stack.exposures, stack.bits, rule, noise=noise, spatial=spatial)[0]
-    b, m, c, h, w = moduli.shape  # a mosaic's sides are even (FrameStack and frame_cfa refuse others)
-    planes = F.pixel_unshuffle(moduli.reshape(b * m, c, h, w), 2).reshape(b, m, 4 * c, h // 2, w // 2)
-    return F.pixel_shuffle(unwrap_multi(planes, stack.exposures, stack.bits, rule, noise=noise, spatial=True), 2)[0]
 
 
 def _single_frame(

@@ -220,3 +220,50 @@ class TestSpatialPlans:
         reference = _noisy_plan(stops, 8, 1.0, 255.0, noise, 3.0, 1.2, 1.5, noise)
         assert absolute is not None and reference is not None
         assert absolute[0] == reference[0] == 1.0 and absolute[-1] >= reference[-1] * (1 - 1e-9)
+
+
+class TestMosaics:
+    """``cfa=``: with spatial evidence a mosaic's four colour planes are decoded apart."""
+
+    def _mosaic(self) -> tuple[torch.Tensor, torch.Tensor, list[float]]:
+        radiance = _smooth_scene(14)  # (1, 3, 48, 48)
+        taus = _plan(14, Q16, spatial=True)
+        sensor = SimulatedModuloSensor(8, Q16, seed=3, cfa="GRBG")
+        return sensor(radiance, taus).moduli, radiance, taus  # moduli (1, M, 1, 48, 48)
+
+    def test_planes_are_decoded_apart(self) -> None:
+        moduli, _, taus = self._mosaic()
+        out, variance = tm.unwrap_multi(moduli, taus, 8, noise=Q16, spatial=True, cfa="GRBG", return_variance=True)
+        assert out.shape == variance.shape == (1, 1, 48, 48)
+        for dy in (0, 1):
+            for dx in (0, 1):
+                plane = moduli[..., dy::2, dx::2]
+                alone, alone_variance = tm.unwrap_multi(plane, taus, 8, noise=Q16, spatial=True, return_variance=True)
+                assert torch.equal(out[..., dy::2, dx::2], alone)
+                assert torch.equal(variance[..., dy::2, dx::2], alone_variance)
+        unbatched = tm.unwrap_multi(moduli[0], taus, 8, noise=Q16, spatial=True, cfa="GRBG")
+        assert torch.equal(unbatched, out[0])
+
+    def test_the_layer_reads_the_pattern_of_a_frame_stack(self) -> None:
+        moduli, radiance, taus = self._mosaic()
+        stack = SimulatedModuloSensor(8, Q16, seed=3, cfa="GRBG")(radiance, taus)
+        layer = tm.MultiExposureUnwrap(8, noise=Q16, spatial=True)
+        expected = tm.unwrap_multi(moduli, taus, 8, noise=Q16, spatial=True, cfa="GRBG")
+        assert torch.equal(layer(stack), expected)
+
+    def test_without_spatial_evidence_the_pattern_changes_nothing(self) -> None:
+        moduli, _, taus = self._mosaic()
+        for noise in (None, Q16):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                plain = tm.unwrap_multi(moduli, taus, 8, noise=noise)
+                assert torch.equal(tm.unwrap_multi(moduli, taus, 8, noise=noise, cfa="GRBG"), plain)
+
+    def test_bad_patterns_and_shapes_are_named(self) -> None:
+        moduli, _, taus = self._mosaic()
+        with pytest.raises(ValueError, match="cfa"):
+            tm.unwrap_multi(moduli, taus, 8, noise=Q16, spatial=True, cfa="RGBW")
+        with pytest.raises(ValueError, match=r"even height and width.*got shape \(1, \d+, 1, 47, 48\)"):
+            tm.unwrap_multi(moduli[..., :47, :], taus, 8, noise=Q16, spatial=True, cfa="GRBG")
+        with pytest.raises(ValueError, match="one channel"):
+            tm.unwrap_multi(moduli.expand(-1, -1, 3, -1, -1), taus, 8, noise=Q16, cfa="GRBG")

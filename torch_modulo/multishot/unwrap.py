@@ -10,6 +10,7 @@ from typing import Literal, Protocol, cast, overload
 
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from torch_modulo._checks import (
     MAX_BITS,
@@ -23,6 +24,7 @@ from torch_modulo._checks import (
     like_memory_format,
     validation_enabled,
 )
+from torch_modulo.cfa import check_cfa
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
 from torch_modulo.multishot.planning import dark_rollover_message, unsafe_ratio_message
@@ -153,6 +155,7 @@ def unwrap_multi(
     noise: NoiseModel | str | None = ...,
     sigmas: float = ...,
     spatial: bool = ...,
+    cfa: str | None = ...,
     return_counts: bool = ...,
     return_variance: Literal[False] = ...,
 ) -> torch.Tensor: ...
@@ -168,6 +171,7 @@ def unwrap_multi(
     noise: NoiseModel | str | None = ...,
     sigmas: float = ...,
     spatial: bool = ...,
+    cfa: str | None = ...,
     return_counts: bool = ...,
     return_variance: Literal[True],
 ) -> tuple[torch.Tensor, torch.Tensor]: ...
@@ -183,6 +187,7 @@ def unwrap_multi(
     noise: NoiseModel | str | None = ...,
     sigmas: float = ...,
     spatial: bool = ...,
+    cfa: str | None = ...,
     return_counts: bool = ...,
     return_variance: bool,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]: ...
@@ -197,6 +202,7 @@ def unwrap_multi(
     noise: NoiseModel | str | None = None,
     sigmas: float = 3.0,
     spatial: bool = False,
+    cfa: str | None = None,
     return_counts: bool = False,
     return_variance: bool = False,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
@@ -236,8 +242,11 @@ def unwrap_multi(
         spatial: with ``noise``: predict each pixel's next count from the mean of its agreeing 3 x 3 neighbours in
             its image plane (:mod:`torch_modulo.multishot.spatial`), so that the larger ratios of a spatial plan
             (``plan_exposures(..., noise=..., spatial=True)``) decode; False (the default) decodes every pixel
-            alone. Without ``noise`` it changes nothing. A mosaic's neighbours are other colours: decode its colour
-            planes apart (``torch.nn.functional.pixel_unshuffle(frames, 2)``, as ``torch-modulo unwrap`` does).
+            alone. Without ``noise`` it changes nothing. Give a mosaic's ``cfa``: its neighbours are other colours.
+        cfa: the colour filter array of mosaicked frames (``"RGGB"``, ``"BGGR"``, ``"GRBG"`` or ``"GBRG"``; moduli
+            (B, M, 1, H, W) with an even height and width), or None. With ``spatial`` and ``noise`` the four colour
+            planes are decoded apart, each as a half-resolution image, so that a photosite's neighbours are of its
+            own colour; otherwise each photosite is decoded alone and it changes nothing.
         return_counts: return the counts at the longest exposure instead of radiance (without noise the integer
             counts ``I = I_m + k 2^N``; with noise the estimate's expected count ``tau_max E``).
         return_variance: also return the variance of the radiance (or counts) from the noise model (requires
@@ -285,6 +294,17 @@ def unwrap_multi(
         raise ValueError("return_variance=True needs a noise model (noise=...)")
     sigmas = check_real(sigmas, "sigmas", positive=True)
     stack, tau, unbatched = stack_exposures(moduli, exposures, "moduli")
+    if cfa is not None:
+        cfa = check_cfa(cfa)
+        if stack.shape[2] != 1 or stack.shape[3] % 2 or stack.shape[4] % 2:
+            raise ValueError(
+                f"moduli of a colour filter array (cfa={cfa!r}) must be mosaics with one channel and an even height "
+                f"and width, (B, M, 1, H, W); got shape {tuple(moduli.shape)}"
+            )
+        if spatial and noise is not None:
+            mosaics = _by_colour_plane(stack, tau, bits, method, noise, sigmas, return_counts, return_variance)
+            mosaics = tuple(o[0] for o in mosaics) if unbatched else mosaics
+            return cast(tuple[torch.Tensor, torch.Tensor], mosaics) if return_variance else mosaics[0]
     check_has_values(stack, "moduli")  # the decoder reads values, with the checks on or off
     if tau.requires_grad:
         tau = tau.detach()
@@ -323,6 +343,34 @@ def unwrap_multi(
     if unbatched:
         radiance, variance = radiance[0], variance[0]
     return (radiance, variance) if return_variance else radiance
+
+
+def _by_colour_plane(
+    stack: torch.Tensor,
+    tau: torch.Tensor,
+    bits: int,
+    method: str,
+    noise: NoiseModel,
+    sigmas: float,
+    return_counts: bool,
+    return_variance: bool,
+) -> tuple[torch.Tensor, ...]:
+    """The spatial decode of (B, M, 1, H, W) mosaics, its four colour planes as the channels of (B, M, 4, H/2, W/2)
+    images, put back into (B, 1, H, W) mosaics: ``(radiance,)`` or ``(radiance, variance)``."""
+    b, m, _, h, w = stack.shape
+    planes = F.pixel_unshuffle(stack.reshape(b * m, 1, h, w), 2).reshape(b, m, 4, h // 2, w // 2)
+    out = unwrap_multi(
+        planes,
+        tau,
+        bits,
+        method,
+        noise=noise,
+        sigmas=sigmas,
+        spatial=True,
+        return_counts=return_counts,
+        return_variance=return_variance,
+    )
+    return tuple(F.pixel_shuffle(o, 2) for o in (out if isinstance(out, tuple) else (out,)))
 
 
 class _FrameStackLike(Protocol):
@@ -365,7 +413,9 @@ class MultiExposureUnwrap(nn.Module):
         return_counts: return counts at the longest exposure instead of radiance.
         noise: the sensor's noise model (or a preset name), or None.
         sigmas: the decoding gate with ``noise`` (see :func:`unwrap_multi`).
-        spatial: with ``noise``, use the neighbours' evidence (see :func:`unwrap_multi`).
+        spatial: with ``noise``, use the neighbours' evidence (see :func:`unwrap_multi`); a
+            :class:`~torch_modulo.sensors.FrameStack` of mosaics passes its ``cfa``, so that its colour planes are
+            decoded apart.
 
     Shape:
         - Input: moduli (B, M, C, H, W) or (M, C, H, W); exposures (M,) or (B, M).
@@ -406,10 +456,12 @@ class MultiExposureUnwrap(nn.Module):
         moduli: torch.Tensor | tuple[torch.Tensor, torch.Tensor] | _FrameStackLike,
         exposures: Sequence[float] | torch.Tensor | None = None,
     ) -> torch.Tensor:
+        cfa = None
         if exposures is None:
             bits = getattr(moduli, "bits", self.bits)  # a FrameStack knows its bit depth
             if bits != self.bits:
                 raise ValueError(f"the stack holds bits={bits} frames but this layer decodes bits={self.bits}")
+            cfa = getattr(moduli, "cfa", None)  # and its mosaic's pattern
             frames, exposures = _split_stack(moduli)
         else:
             frames = check_floating(moduli, "moduli")
@@ -421,6 +473,7 @@ class MultiExposureUnwrap(nn.Module):
             noise=self.noise,
             sigmas=self.sigmas,
             spatial=self.spatial,
+            cfa=cfa,
             return_counts=self.return_counts,
         )
         # Keep the frames' memory format: channels-last frames (MultiExposureCapture of channels-last radiance) give
