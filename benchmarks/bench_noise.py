@@ -47,23 +47,8 @@ from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, Simulated
 NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": NoiseModel(16.0, 16.0)}
 INTENSITY_RATIOS = (16.0, 4.0, 2.0, 1.25)
 INTENSITY_KEYS = [f"intensity_r{r:g}" for r in INTENSITY_RATIOS]
-BANDS = ("dark", "mid", "bright")
-
-
-def scores(estimate: torch.Tensor, truth: torch.Tensor) -> dict[str, float]:
-    mask = truth > 0
-    values = truth[mask]
-    rel = ((estimate[mask] - values).abs() / values).float()
-    out = {
-        "median": float(rel.median()),
-        "p99": float(torch.quantile(rel[:: max(1, rel.numel() // 4_000_000)], 0.99)),
-        "gross": float((rel > 0.5).double().mean()),
-    }
-    # The median in each third of the scene's radiance (dark, mid, bright), by rank.
-    order = torch.argsort(values)
-    for name, part in zip(BANDS, torch.tensor_split(order, 3), strict=True):
-        out[name] = float(rel[part].median()) if part.numel() else float("nan")
-    return out
+BANDS = protocols.RADIANCE_BANDS
+scores = protocols.protocol_n_scores
 
 
 def calibration(estimate: torch.Tensor, variance: torch.Tensor, truth: torch.Tensor) -> float:

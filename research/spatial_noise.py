@@ -15,29 +15,14 @@ import argparse
 import statistics
 import warnings
 
-import torch
-
 import torch_modulo as tm
 from torch_modulo import protocols
 from torch_modulo.multishot import planning
 from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
 
 NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": NoiseModel(16.0, 16.0)}
-BANDS = ("dark", "mid", "bright")
-
-
-def scores(estimate: torch.Tensor, truth: torch.Tensor) -> dict[str, float]:
-    mask = truth > 0
-    values = truth[mask]
-    rel = ((estimate[mask] - values).abs() / values).float()
-    out = {
-        "median": float(rel.median()),
-        "p99": float(torch.quantile(rel[:: max(1, rel.numel() // 4_000_000)], 0.99)),
-        "gross": float((rel > 0.5).double().mean()),
-    }
-    for name, part in zip(BANDS, torch.tensor_split(torch.argsort(values), 3), strict=True):
-        out[name] = float(rel[part].median())
-    return out
+BANDS = protocols.RADIANCE_BANDS
+scores = protocols.protocol_n_scores
 
 
 def plan(stops: int, noise: NoiseModel, spatial: bool, ratio: float | None) -> list[float]:

@@ -21,7 +21,8 @@ Protocols (12-bit or 10-bit true counts ``I``; the 8-bit modulus is ``I mod 256`
   channel; the counts are ``floor(clip(x e, 0, 1) * peak)`` per channel.
 - :func:`protocol_counts` and :data:`PROTOCOL_PEAKS` select a protocol by name; the peak is also the PSNR peak.
 - :func:`protocol_n` (multi shot under noise): the radiance scale that makes the 0.1th percentile of the positive
-  values read 16 counts at exposure 1, and the stops the scene needs, ``ceil(log2(max / that percentile) + 4)``.
+  values read 16 counts at exposure 1, and the stops the scene needs, ``ceil(log2(max / that percentile) + 4)``;
+  :func:`protocol_n_scores` scores a radiance estimate (relative errors, by third of the radiance too).
 
 Scores (per scene, :func:`score_scene`): each channel's global rollover offset is aligned with the truth first
 (:func:`align_offsets`: the most common difference of the rollover counts ``k = floor(I / 2^N)``); then *exact-k*
@@ -58,6 +59,7 @@ __all__ = [
     "DEV_SCENES",
     "HDR_SUFFIXES",
     "PROTOCOL_PEAKS",
+    "RADIANCE_BANDS",
     "SPLITS",
     "TRAIN_SOURCES",
     "VALIDATION_SOURCES",
@@ -73,6 +75,7 @@ __all__ = [
     "protocol_counts",
     "protocol_n",
     "protocol_n_levels",
+    "protocol_n_scores",
     "rolled_over_right",
     "scene_split",
     "score_scene",
@@ -338,6 +341,33 @@ def protocol_n(image: torch.Tensor) -> tuple[float, int]:
 # --------------------------------------------------------------------------------------------------------------------
 # scores
 # --------------------------------------------------------------------------------------------------------------------
+
+#: The thirds of a scene's radiance (by rank) that :func:`protocol_n_scores` reports a median for.
+RADIANCE_BANDS = ("dark", "mid", "bright")
+
+
+def protocol_n_scores(estimate: torch.Tensor, truth: torch.Tensor) -> dict[str, float]:
+    """Protocol N's scores of a radiance estimate, over the values whose true radiance is positive: ``median`` and
+    ``p99`` of the relative error, ``gross`` (the share more than 50% off) and the median in each third of the
+    scene's radiance by rank (:data:`RADIANCE_BANDS`; NaN for an empty third).
+
+    Example:
+        >>> truth = torch.tensor([1.0, 2.0, 4.0, 0.0])
+        >>> protocol_n_scores(truth * 1.1, truth)["gross"], protocol_n_scores(truth * 2.0, truth)["gross"]
+        (0.0, 1.0)
+    """
+    mask = truth > 0
+    values = truth[mask]
+    rel = ((estimate[mask] - values).abs() / values).float()
+    out = {
+        "median": float(rel.median()),
+        "p99": float(torch.quantile(rel[:: max(1, rel.numel() // 4_000_000)], 0.99)),
+        "gross": float((rel > 0.5).double().mean()),
+    }
+    order = torch.argsort(values)
+    for name, part in zip(RADIANCE_BANDS, torch.tensor_split(order, 3), strict=True):
+        out[name] = float(rel[part].median()) if part.numel() else float("nan")
+    return out
 
 
 class SceneScore(NamedTuple):
