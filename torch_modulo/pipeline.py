@@ -195,6 +195,9 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         scale = float(options["scale"]) if fixed else fit_scale(image, bits, taus, noise)
         facts["scaling"] = "fixed" if fixed else ("single shot (protocol A)" if len(taus) == 1 else "below rollover")
         notes += unsafe_ratio_warnings(taus, bits, noise, image, spatial=spatial)
+    # Planned for the decoder with spatial evidence: the stack records it, so unwrap decodes it so (one frame has
+    # nothing to decode).
+    recorded = {"spatial": True} if spatial and len(taus) > 1 else {}
     # Round to float32 first: radiance.exr (float32) then holds exactly the radiance the frames were captured from.
     radiance = (image * scale).float().double()
     seed = scene_seed(int(options["seed"]), task.name)
@@ -207,8 +210,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         "bits": bits,
         "exposures": taus,
         **facts,
-        # Planned for the decoder with spatial evidence: unwrap decodes it so (one frame has nothing to decode).
-        **({"spatial": True} if spatial and len(taus) > 1 else {}),
+        **recorded,
     }
     dtype = torch.float32 if bits <= 24 else torch.float64
     stack = FrameStack(stack.moduli.to(dtype), stack.exposures, bits, metadata, kind=stack.kind, cfa=stack.cfa)
@@ -231,7 +233,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         "exposures": taus,
         "noise": noise_name(noise),
         **facts,
-        **({"spatial": True} if spatial and len(taus) > 1 else {}),
+        **recorded,
         "negatives_clamped": counts["negative"],
     }
     info = _with_replaced(info, counts)

@@ -538,16 +538,17 @@ def unsafe_ratio_message(
         >>> unsafe_ratio_message(12.0, 8, NoiseModel(), spatial=True) is None
         True
     """
-    ratio, c_min = safe_ratio(bits, noise, sigmas)
     if spatial:
         ratio = spatial_safe_ratio(bits, noise, sigmas)
-    if worst <= ratio * (1 + 1e-9):
-        return None
-    if spatial:
+        if worst <= ratio * (1 + 1e-9):
+            return None
         return (
             f"exposure ratio {worst:g} is unsafe under {noise} even with spatial evidence: dark pixels cannot be "
             f"decoded in the longer frame and keep errors of 50% or more; keep ratios <= {ratio:.3g}"
         )
+    ratio, c_min = safe_ratio(bits, noise, sigmas)
+    if worst <= ratio * (1 + 1e-9):
+        return None
     return (
         f"exposure ratio {worst:g} is unsafe under {noise}: pixels that read up to {c_min:.0f} counts in the "
         f"shorter frame cannot be decoded in the longer one and keep errors of 50% or more; keep ratios <= "
