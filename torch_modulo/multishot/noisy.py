@@ -101,7 +101,7 @@ class _Counts:
 
     def variance(self, expected: torch.Tensor) -> torch.Tensor:
         """Var(I) of frames whose expected count (signal plus dark) is ``expected`` (>= 0)."""
-        return expected * self.per_count + self.floor
+        return (expected * self.per_count).add_(self.floor)
 
     def clip_bias(self, expected: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``b(x) = E[I] - (x - 1/2)`` at ``x = expected`` (module docstring), and its slope, from
@@ -288,23 +288,23 @@ def _decode(
         total, weighted = keep(total), keep(weighted)
         inverse = 1.0 / total
         if shape is None:
-            expected = weighted * inverse * ti  # the predicted count + 1/2
+            expected = (weighted * inverse).mul_(ti)  # the predicted count + 1/2
             own = model.variance(expected)
-            active = active * (own + inverse * (ti * ti) <= gate)
+            active = (own + inverse * (ti * ti)).le_(gate).mul_(active)  # masks as 0.0 / 1.0 floats (spatial.py)
         else:
             guess, spread = neighbour_prediction(weighted * inverse, inverse, shape)
-            expected = guess * ti
+            expected = guess.mul_(ti)
             own = model.variance(expected)
-            spread = spread * (ti * ti)
-            active = active * (spread <= gate) * (own + spread <= whole)
+            spread = spread.mul_(ti * ti)
+            active = (own + spread).le_(whole).mul_(spread.le_(gate)).mul_(active)
         decoded.append(active)
         half = x[:, i] + 0.5
-        k = ((expected - half) / period).round_().clamp_min_(0.0)
+        k = (expected - half).div_(period).round_().clamp_min_(0.0)
         counts.append(half.add_(k.mul_(period)))
-        weight = active * (ti * ti) / own  # the prediction's variance: independent of frame i
-        total = total + weight
-        weighted = weighted + weight * counts[i] / ti
-        used = used + active
+        weight = (active * (ti * ti)).div_(own)  # the prediction's variance: independent of frame i
+        total = total.add_(weight)  # in place, here and below: fewer fresh buffers, which cost more than the sums
+        weighted = weighted.add_(weight.mul_(counts[i]).div_(ti))
+        used = used.add_(active)
     # The least-squares fit with every used frame's weight t / Var(I) at one radiance, the clip-corrected running
     # estimate; then its clip bias corrected through the item's table.
     first = _unclip(weighted / total, used, t, table)
@@ -312,9 +312,9 @@ def _decode(
     raw = torch.zeros_like(first)
     for i in range(m):
         ti = exposures[i]
-        slope = decoded[i] / (first * model.per_count + model.floor / ti)  # t / Var(I)
-        norm = norm + slope * ti
-        raw = raw + slope * counts[i]
+        slope = decoded[i] / (first * model.per_count).add_(model.floor / ti)  # t / Var(I)
+        norm = norm.add_(slope * ti)
+        raw = raw.add_(slope.mul_(counts[i]))
     return _unclip(raw / norm, used, t, table), 1.0 / norm, used
 
 
