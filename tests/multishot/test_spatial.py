@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import pytest
@@ -84,6 +85,21 @@ class TestNeighbourPrediction:
         estimate = torch.tensor([[1.0, 1.0, 5.0, 5.0]])  # two 1 x 2 planes
         mean, _ = neighbour_prediction(estimate, torch.full((1, 4), 100.0), (1, 2))
         assert torch.equal(mean, estimate)
+
+    @pytest.mark.parametrize("bad", [math.inf, math.nan])
+    def test_a_non_finite_estimate_is_no_neighbour(self, bad: float) -> None:
+        # An estimate beyond the work dtype's range fails every agreement test: its neighbours are predicted from
+        # their other pairs (exact on this slope), finite, as if it were beyond the border.
+        y, x = torch.meshgrid(torch.arange(6.0), torch.arange(7.0), indexing="ij")
+        estimate = (100 + 0.3 * x - 0.2 * y).reshape(1, -1)
+        broken = estimate.clone()
+        broken[0, 2 * 7 + 3] = bad
+        mean, variance = neighbour_prediction(broken, torch.ones(1, 42), (6, 7))
+        others = torch.ones(1, 42, dtype=torch.bool)
+        others[0, 2 * 7 + 3] = False
+        torch.testing.assert_close(mean[others], estimate[others])
+        assert float(variance.reshape(6, 7)[2, 4]) == pytest.approx(1 / 7)  # three of its four pairs
+        assert float(variance.reshape(6, 7)[3, 3]) == pytest.approx(1 / 7)
 
 
 class TestSpatialDecoding:
