@@ -52,15 +52,34 @@ RADIUS = max(max(abs(dy), abs(dx)) for dy, dx in _PAIRS)
 
 @torch.library.custom_op("torch_modulo::spatial_buffer", mutates_args=())
 def stored(x: torch.Tensor) -> torch.Tensor:
-    """A copy of ``x``, which ``torch.compile`` cannot see through: the decoder stores what the neighbours read (the
-    estimates, and the running sums they come from) each frame, where fused code would otherwise recompute the whole
-    walk over the frames before for each neighbour."""
+    """A copy of ``x``, which ``torch.compile`` cannot see through: the decoder stores the running sums that the
+    neighbours' estimates come from each frame, where fused code would otherwise recompute the whole walk over the
+    frames before for each neighbour."""
     return x.clone()
 
 
 @stored.register_fake
 def _(x: torch.Tensor) -> torch.Tensor:
     return torch.empty_like(x)
+
+
+def _pad(e: torch.Tensor, r: int) -> torch.Tensor:
+    """``e`` (planes, H, W) padded by ``r`` NaN on every side: beyond the border is never a neighbour (NaN fails the
+    agreement test)."""
+    return F.pad(e, (r, r, r, r), value=math.nan)
+
+
+@torch.library.custom_op("torch_modulo::padded_plane", mutates_args=())
+def padded_plane(e: torch.Tensor, r: int) -> torch.Tensor:
+    """:func:`_pad` as an operator ``torch.compile`` does not fuse: the compiled decoder reads the neighbours from
+    this buffer, not by recomputing the frames before for each of them, and without bounds checks (so the fused
+    code is vectorised; about 1.3 times faster than padding inside it)."""
+    return _pad(e, r)
+
+
+@padded_plane.register_fake
+def _(e: torch.Tensor, r: int) -> torch.Tensor:
+    return e.new_empty((e.shape[0], e.shape[1] + 2 * r, e.shape[2] + 2 * r))
 
 
 def gates(bits: int, sigmas: float) -> tuple[float, float]:
@@ -87,14 +106,12 @@ def neighbour_prediction(
         ``(mean, variance)``, each (B, n) like ``estimate``. Pixels beyond the image border are not neighbours.
     """
     h, w = shape
-    if torch.compiler.is_compiling():  # read the neighbours from a buffer, not by recomputing the frames before
-        estimate = stored(estimate)
     e = estimate.reshape(-1, h, w)
     v = variance.reshape(-1, h, w)
     # |E_q - E_p| <= a sqrt(2 Var(E_p)): the test with Var(E_q) taken as Var(E_p), as on a locally flat radiance.
     limit = v.sqrt().mul_(agree * math.sqrt(2.0))
     r = RADIUS
-    padded = F.pad(e, (r, r, r, r), value=math.nan)  # beyond the border: never a neighbour (NaN fails the test)
+    padded = padded_plane(e, r) if torch.compiler.is_compiling() else _pad(e, r)
     # Eager, the masks are 0.0 / 1.0 floats made in place and applied by multiplication: on the CPU, boolean
     # tensors and torch.where cost several times the arithmetic they select. Compiled, the selection is fused (and
     # the in-place form more than doubled the compiled decoder's time).
