@@ -67,9 +67,10 @@ _GRID = 256
 _TOP = 2.0**16
 #: Newton steps per grid point of a table (from above; the last ones change nothing measurable).
 _NEWTON_STEPS = 8
-#: Columns per CPU chunk.
-_CHUNK = 1 << 16
-#: Pixels per band of rows with spatial evidence (more operations per pixel: larger bands keep their overhead low).
+#: Columns per CPU chunk: each operation on a chunk also pays a fixed cost (dispatch, its scalars made tensors),
+#: which 2^16 columns did not hide (2^18 decoded 1.2 times faster, the same values).
+_CHUNK = 1 << 18
+#: Pixels per band of rows with spatial evidence.
 _BAND = 1 << 18
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
