@@ -130,7 +130,7 @@ def neighbour_prediction(
             near = (slice(r, r + h), slice(r + dx, r + dx + w))
             far = (slice(r - dy, r - dy + h), slice(r, r + w))
         diff = step[:, near[0], near[1]] - step[:, far[0], far[1]]
-        size = step.abs()
+        size = step.abs_()  # after diff: in place
         worst = torch.maximum(size[:, near[0], near[1]], size[:, far[0], far[1]])  # NaN (beyond the border) fails
         if compiling:
             both = worst <= limit
