@@ -24,6 +24,7 @@ frames used; for the modulo decoder, the share of values more than 3 of its repo
     python benchmarks/bench_noise.py --limit 3       # a quick look
     python benchmarks/bench_noise.py --spatial       # the plan and decoder with spatial evidence
     python benchmarks/bench_noise.py --frames 6 --modulo-only   # plans of at most 6 frames: frames against error
+    python benchmarks/bench_noise.py --spatial --longest-frames 2 --modulo-only   # the longest exposure twice
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ import torch
 
 import torch_modulo as tm
 from torch_modulo import protocols
-from torch_modulo._argtypes import nonnegative_int
+from torch_modulo._argtypes import nonnegative_int, positive_int
 from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
 
 NOISES = {"q1": NoiseModel(electrons_per_count=1.0, read_noise=1.0), "q16": NoiseModel(16.0, 16.0)}
@@ -79,8 +80,13 @@ def modulo_plan(stops: int, noise: NoiseModel, args: argparse.Namespace) -> list
     """The noise-aware plan, the longest exposure normalised to 1: ``plan_exposures``, for the decoder with spatial
     evidence with ``--spatial``; with ``--frames K``, the best plan of at most ``K`` exposures (``frames=``) where
     that is fewer than the default plan's (a scene whose largest ratios need more than ``K`` takes the fewest they
-    need), else the default plan."""
-    options = {"tolerance": args.tolerance, "min_ratio": args.min_ratio, "spatial": args.spatial}
+    need), else the default plan; with ``--longest-frames L``, the longest exposure taken ``L`` times."""
+    options = {
+        "tolerance": args.tolerance,
+        "min_ratio": args.min_ratio,
+        "spatial": args.spatial,
+        "longest_frames": args.longest_frames,
+    }
     plan = tm.plan_exposures(stops, 8, noise=noise, **options)
     for budget in range(min(args.frames, len(plan)), len(plan)) if args.frames else ():
         try:
@@ -146,6 +152,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tolerance", type=float, default=1.2, help="plan_exposures tolerance")
     parser.add_argument("--min-ratio", type=float, default=1.5, help="plan_exposures min_ratio")
     parser.add_argument("--spatial", action="store_true", help="the plan and decoder with spatial evidence")
+    parser.add_argument(
+        "--longest-frames", type=positive_int, default=1, help="frames at the longest exposure (plan_exposures)"
+    )
     parser.add_argument("--frames", type=nonnegative_int, default=0, help="a frame budget per scene (0: none)")
     parser.add_argument("--modulo-only", action="store_true", help="skip the blind and intensity rows (faster)")
     parser.add_argument("--json", type=Path, help="also write the rows and summary here")

@@ -314,3 +314,41 @@ class TestFrameBudget:
     def test_bad_budget_named(self, frames: object, error: type[Exception]) -> None:
         with pytest.raises(error, match="frames"):
             tm.plan_exposures(16, 8, noise="q16", frames=frames)  # type: ignore[arg-type]
+
+
+class TestLongestFrames:
+    @pytest.mark.parametrize("options", [{}, {"noise": "q16"}, {"noise": "q16", "spatial": True, "longest": 2.0}])
+    def test_the_longest_exposure_is_repeated(self, options: dict[str, object]) -> None:
+        plan = tm.plan_exposures(16, 8, **options)  # type: ignore[arg-type]
+        assert tm.plan_exposures(16, 8, longest_frames=3, **options) == plan + [plan[-1]] * 2  # type: ignore[arg-type]
+
+    def test_the_budget_counts_the_repeats(self) -> None:
+        shorter = tm.plan_exposures(20, 8, noise="q16", frames=5)
+        plan = tm.plan_exposures(20, 8, noise="q16", frames=6, longest_frames=2)
+        assert plan == shorter + [shorter[-1]]
+
+    def test_bad_values_are_named(self) -> None:
+        with pytest.raises(ValueError, match="longest_frames"):
+            tm.plan_exposures(16, 8, noise="q16", longest_frames=0)
+        with pytest.raises(TypeError, match="longest_frames"):
+            tm.plan_exposures(16, 8, noise="q16", longest_frames=1.5)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="frames=2 cannot hold the longest_frames=3"):
+            tm.plan_exposures(16, 8, noise="q16", frames=2, longest_frames=3)
+        need = len(tm.plan_exposures(30, 8, noise="q16", max_ratio=8, min_ratio=8)) + 1  # the largest ratios, 1 repeat
+        with pytest.raises(ValueError, match=rf"frames=4 is too few: .* needs {need} exposures"):
+            tm.plan_exposures(30, 8, noise="q16", max_ratio=8, frames=4, longest_frames=2)
+        with pytest.raises(ValueError, match=r"frames=3 is too few: .* needs 4 exposures"):
+            tm.plan_exposures(24, 8, max_ratio=256, frames=3, longest_frames=2)  # noise-free: 3 + 1
+
+    def test_a_repeat_collects_light_where_the_pixels_decode(self) -> None:
+        # A smooth 14-stop ramp under q16, decoded with spatial evidence: the second frame at the longest exposure
+        # averages the noise of every pixel that decodes it.
+        plan = tm.plan_exposures(14, 8, noise="q16", spatial=True, longest=1.0)
+        y, x = torch.meshgrid(torch.linspace(0, 1, 48), torch.linspace(0, 1, 48), indexing="ij")
+        radiance = torch.exp2(14.0 * (x + y) / 2).to(torch.float64).expand(1, 1, 48, 48)
+        errors = []
+        for taus in (plan, plan + [plan[-1]]):
+            moduli = tm.sensors.SimulatedModuloSensor(8, "q16", seed=3)(radiance, taus).moduli
+            decoded = tm.unwrap_multi(moduli, taus, 8, noise="q16", spatial=True)
+            errors.append(float(((decoded - radiance).abs() / radiance).median()))
+        assert errors[1] < 0.9 * errors[0], errors

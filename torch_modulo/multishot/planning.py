@@ -270,6 +270,7 @@ def plan_exposures(
     min_ratio: float = 1.5,
     frames: int | None = None,
     spatial: bool = False,
+    longest_frames: int = 1,
 ) -> list[float]:
     """The fewest exposures whose modulo captures decode a scene of ``stops`` stops reliably, or the best plan within
     a budget of ``frames`` exposures.
@@ -293,6 +294,10 @@ def plan_exposures(
     a pixel that read no signal still decodes), else of the smallest larger tolerance; noise-free the fewest-frame
     plan.
 
+    With ``longest_frames=L`` the longest exposure is taken ``L`` times (the budget ``frames`` counts them): the
+    repeats collect light where every pixel that decodes the longest frame reads the most. Under noise a repeat can
+    be worth more than the smaller ratios it replaces (docs/multishot.md, "Repeating the longest exposure").
+
     Args:
         stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
         bits: the sensor's bit depth.
@@ -309,6 +314,7 @@ def plan_exposures(
         spatial: with noise, plan for the decoder with spatial evidence (``unwrap_multi(..., spatial=True)``): its
             predictions average agreeing neighbours, so the plan takes larger ratios (at least about 3.1 with the
             default ``min_ratio``) and fewer frames. Decode such a plan with ``spatial=True``.
+        longest_frames: how many frames take the longest exposure (>= 1).
 
     Returns:
         Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
@@ -344,8 +350,12 @@ def plan_exposures(
     base = 1.0 if base is None else check_real(base, "base", positive=True)
     if longest is not None:
         longest = check_real(longest, "longest", positive=True)
+    longest_frames = check_int(longest_frames, "longest_frames", 1)
     if frames is not None:
         frames = check_int(frames, "frames", 1)
+        if frames < longest_frames:
+            raise ValueError(f"frames={frames} cannot hold the longest_frames={longest_frames} repeats of one exposure")
+    repeats = longest_frames - 1  # the budget counts them: the plan before them has `frames - repeats`
     if max_ratio is None:
         limit = 2.0**bits - 1 if bits > 1 else 2.0  # a 1-bit counter decodes integer ratios up to 2 exactly
     else:
@@ -399,7 +409,7 @@ def plan_exposures(
             else:
                 reach = float(_largest_ratio(now, dark, blank, scaled, _gate(bits, sigmas)))
             scene = f"stops={stops:g} at bits={bits} under {model}"
-            plan = _within_budget(make, frames, scene, tolerance, min_ratio, limit, reach)
+            plan = _within_budget(make, frames - repeats, scene, tolerance, min_ratio, limit, reach, repeats)
         if not math.isfinite(plan[-1]):
             raise ValueError(
                 f"stops={stops:g} from base={base:g} under {model} needs exposures beyond float64's range (about "
@@ -407,11 +417,13 @@ def plan_exposures(
             )
     else:
         plan = _noise_free_plan(stops, bits, base, limit)
-        if frames is not None and len(plan) > frames:
+        if frames is not None and len(plan) + repeats > frames:
+            need = len(plan) + repeats
             raise ValueError(
-                f"frames={frames} is too few: stops={stops:g} at bits={bits} needs {len(plan)} exposures even with "
-                f"ratios of max_ratio={limit:g}; allow {len(plan)} frames, raise max_ratio or plan fewer stops"
+                f"frames={frames} is too few: stops={stops:g} at bits={bits} needs {need} exposures even with "
+                f"ratios of max_ratio={limit:g}; allow {need} frames, raise max_ratio or plan fewer stops"
             )
+    plan += [plan[-1]] * repeats
     if longest is None:
         return plan
     return [t * longest / plan[-1] for t in plan]
@@ -425,12 +437,14 @@ def _within_budget(
     min_ratio: float,
     limit: float,
     reach: float,
+    repeats: int = 0,
 ) -> list[float]:
     """``make(tolerance, min_ratio, most)`` within a budget of ``frames`` exposures (the module docstring): the
     smallest tolerance from 1 up to ``tolerance`` whose plan fits; else the smallest ``min_ratio`` from ``min_ratio``
     up to ``reach`` (and ``limit``) whose plan fits; else the smallest tolerance above ``tolerance`` whose plan fits.
     Each by bisection on its logarithm (a tolerance of 2^64 plans as an infinite one: the largest ratios, the fewest
-    frames)."""
+    frames). An error names the budget and the need with ``repeats`` more (the repeats of the longest exposure
+    that follow the plan)."""
     frames = min(frames, _MAX_FRAMES)
 
     def smallest(fits: Callable[[float], list[float] | None], low: float, high: float) -> list[float] | None:
@@ -458,7 +472,8 @@ def _within_budget(
     if plan is None:  # the tolerance lets each ratio grow as far as the pixels still far from their oracle decode
         plan = smallest(lambda tol: make(tol, min_ratio, frames), tolerance, 2.0**64)
     if plan is None:
-        need = len(make(tolerance, limit, None) or [])
+        need = len(make(tolerance, limit, None) or []) + repeats
+        frames += repeats
         raise ValueError(
             f"frames={frames} is too few: {scene} needs {need} exposures even with ratios of max_ratio={limit:g}; "
             f"allow {need} frames, raise max_ratio or plan fewer stops"
