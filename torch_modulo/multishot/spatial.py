@@ -111,11 +111,11 @@ def neighbour_prediction(
     # |E_q - E_p| <= a sqrt(2 Var(E_p)): the test with Var(E_q) taken as Var(E_p), as on a locally flat radiance.
     limit = v.sqrt().mul_(agree * math.sqrt(2.0))
     r = RADIUS
-    padded = padded_plane(e, r) if torch.compiler.is_compiling() else _pad(e, r)
     # Eager, the masks are 0.0 / 1.0 floats made in place and applied by multiplication: on the CPU, boolean
     # tensors and torch.where cost several times the arithmetic they select. Compiled, the selection is fused (and
     # the in-place form more than doubled the compiled decoder's time).
     compiling = torch.compiler.is_compiling()
+    padded = padded_plane(e, r) if compiling else _pad(e, r)
     pairs = torch.zeros_like(e)
     shift = torch.zeros_like(e)
     for dy, dx in _PAIRS:
