@@ -251,3 +251,18 @@ class TestHelpSaysWhatItMeans:
         text = _option_help("unwrap", "method").lower()
         multi, single = text.index("without --single, a multi-shot rule:"), text.index("with --single, a single-shot")
         assert multi < text.index("robust") < single < text.index("learned")
+
+
+def test_a_repeated_longest_exposure_is_simulated_and_decoded(tmp_path: Path) -> None:
+    # Under noise the longest exposure's repeats collect light (plan_exposures(..., longest_frames=2)); the stack
+    # keeps both frames and unwrap decodes it.
+    source = tmp_path / "in"
+    source.mkdir()
+    write_image(source / "a.exr", torch.exp2(torch.linspace(0.0, 10.0, 96)).view(1, 8, 12).expand(3, -1, -1))
+    stacks, out = tmp_path / "stacks", tmp_path / "out"
+    assert _cli("simulate", source, stacks, "--noise", "q16", "--exposures", "0.05,0.5,1,1") == 0
+    assert _report(stacks, "simulate")["options"]["exposures"] == [0.05, 0.5, 1.0, 1.0]
+    assert len(list((stacks / "a").glob("frame_*"))) == 4
+    assert _cli("unwrap", stacks, out) == 0
+    (done,) = _report(out, "unwrap")["done"]
+    assert done["noise"] == "q16" and done["accuracy"]["gross_share"] == 0.0

@@ -85,6 +85,13 @@ def test_duplicate_exposures_are_refused_by_name() -> None:
     # Regression: 1,1,16 was accepted silently (two frames of one exposure add nothing to rollover counting).
     with pytest.raises(argparse.ArgumentTypeError, match=r"exposure 1 appears twice in '1,1.0,16'"):
         exposures("1,1.0,16")
+    with pytest.raises(argparse.ArgumentTypeError, match=r"exposure 16 appears twice in '16,1,16,256'"):
+        exposures("16,1,16,256")
+
+
+def test_the_longest_exposure_may_repeat() -> None:
+    # Under noise its repeats collect light (plan_exposures(..., longest_frames=L)).
+    assert exposures("1,16,256,256") == [1.0, 16.0, 256.0, 256.0]
 
 
 @pytest.mark.parametrize("text", ["0", "25", "-3"])

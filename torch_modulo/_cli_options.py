@@ -86,8 +86,10 @@ def positive_float(text: str) -> float:
 
 
 def exposures(text: str) -> list[float] | str:
-    """``"auto"``, or ``"1,256,65536"`` -> [1.0, 256.0, 65536.0]: one or more finite exposures > 0, each once (two
-    frames of one exposure add nothing to rollover counting, so a repeated exposure is refused, not merged)."""
+    """``"auto"``, or ``"1,256,65536"`` -> [1.0, 256.0, 65536.0]: one or more finite exposures > 0, each once but
+    the longest (two frames of one exposure add nothing to rollover counting, so a repeat is most likely a typo and
+    is refused; under noise the longest exposure's repeats collect light, as ``plan_exposures(...,
+    longest_frames=L)`` plans them)."""
     if text.strip() == "auto":
         return "auto"
     parts = [p.strip() for p in text.split(",")]
@@ -103,11 +105,13 @@ def exposures(text: str) -> list[float] | str:
             raise argparse.ArgumentTypeError(f"exposure {part!r} in {text!r} is not a number") from None
         if not (math.isfinite(value) and value > 0):
             raise argparse.ArgumentTypeError(f"exposures must be finite and > 0; got {part!r} in {text!r}")
-        if value in values:
-            raise argparse.ArgumentTypeError(
-                f"exposure {value:g} appears twice in {text!r}: give each exposure once (one frame each)"
-            )
         values.append(value)
+    for value in values:
+        if values.count(value) > 1 and value != max(values):
+            raise argparse.ArgumentTypeError(
+                f"exposure {value:g} appears twice in {text!r}: give each exposure once (one frame each), "
+                "except the longest, whose repeats collect more light under noise"
+            )
     return values
 
 

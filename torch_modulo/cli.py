@@ -243,9 +243,10 @@ def _add_simulate(commands: Any) -> None:
         metavar="auto|T1,T2,...",
         help="auto (default): per scene, plan_exposures(stops, bits, noise=..., longest=1) for the scene's own "
         "stops (log2 of its maximum over the 0.1th percentile of its positive values, plus 4, rounded up); or "
-        "exposures, comma-separated, each once, e.g. 1,16,256 (neighbours more than 2^bits apart, which unwrap "
-        "cannot decode, are refused: see --force-exposures; under noise, ratios the noise model says are unsafe "
-        "draw a warning naming a safe plan; one exposure: a single-shot stack)",
+        "exposures, comma-separated, each once but the longest (under noise its repeats collect light), e.g. "
+        "1,16,256 or 1,16,256,256 (neighbours more than 2^bits apart, which unwrap cannot decode, are refused: "
+        "see --force-exposures; under noise, ratios the noise model says are unsafe draw a warning naming a safe "
+        "plan; one exposure: a single-shot stack)",
     )
     simulate.add_argument(
         "--force-exposures",

@@ -332,6 +332,10 @@ class TestLongestFrames:
             tm.plan_exposures(16, 8, noise="q16", longest_frames=0)
         with pytest.raises(TypeError, match="longest_frames"):
             tm.plan_exposures(16, 8, noise="q16", longest_frames=1.5)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="longest_frames"):
+            tm.plan_exposures(16, 8, noise="q16", longest_frames=257)
+        with pytest.raises(ValueError, match="193 exposures with longest_frames=100 holds 292 frames, more than 256"):
+            tm.plan_exposures(200, 8, max_ratio=2, longest_frames=100)  # 193 exposures and 99 repeats
         with pytest.raises(ValueError, match="frames=2 cannot hold the longest_frames=3"):
             tm.plan_exposures(16, 8, noise="q16", frames=2, longest_frames=3)
         need = len(tm.plan_exposures(30, 8, noise="q16", max_ratio=8, min_ratio=8)) + 1  # the largest ratios, 1 repeat
@@ -344,10 +348,11 @@ class TestLongestFrames:
         # A smooth 14-stop ramp under q16, decoded with spatial evidence: the second frame at the longest exposure
         # averages the noise of every pixel that decodes it.
         plan = tm.plan_exposures(14, 8, noise="q16", spatial=True, longest=1.0)
+        twice = tm.plan_exposures(14, 8, noise="q16", spatial=True, longest=1.0, longest_frames=2)
         y, x = torch.meshgrid(torch.linspace(0, 1, 48), torch.linspace(0, 1, 48), indexing="ij")
         radiance = torch.exp2(14.0 * (x + y) / 2).to(torch.float64).expand(1, 1, 48, 48)
         errors = []
-        for taus in (plan, plan + [plan[-1]]):
+        for taus in (plan, twice):
             moduli = tm.sensors.SimulatedModuloSensor(8, "q16", seed=3)(radiance, taus).moduli
             decoded = tm.unwrap_multi(moduli, taus, 8, noise="q16", spatial=True)
             errors.append(float(((decoded - radiance).abs() / radiance).median()))

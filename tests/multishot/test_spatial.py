@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import torch_modulo as tm
+from torch_modulo.multishot import noisy
 from torch_modulo.multishot.noisy import decode_noisy
 from torch_modulo.multishot.planning import _noisy_plan, _spatial_min_ratio
 from torch_modulo.multishot.spatial import neighbour_prediction
@@ -165,9 +166,9 @@ class TestSpatialDecoding:
         alone = _rel(_decode(moduli, taus, noise, spatial=False), radiance)
         assert float(alone.median()) > float(decoded.median())
 
-    def test_bands_decode_as_the_whole_plane(self) -> None:
+    def test_bands_decode_as_the_whole_plane(self, monkeypatch: pytest.MonkeyPatch) -> None:
         # On the CPU planes are decoded band by band of rows with context; the result is the whole plane's (the
-        # whole-tensor path, taken where autograd tracks the frames).
+        # whole-tensor path, taken on other devices and under torch.compile).
         radiance = _smooth_scene(16, size=40)[:, :2].repeat_interleave(18, dim=2)  # 720 x 40
         radiance = torch.cat([radiance] * 10, dim=-1)  # 720 x 400: bands of 655 rows
         taus = _plan(16, Q16, spatial=True)
@@ -176,9 +177,19 @@ class TestSpatialDecoding:
         flat = moduli.reshape(b, m, -1).float()
         tau = torch.tensor([taus], dtype=torch.float64)
         banded = decode_noisy(flat, tau, 8, Q16, shape=(720, 400))
-        whole = decode_noisy(flat.clone().requires_grad_(), tau, 8, Q16, shape=(720, 400))
+        monkeypatch.setattr(noisy, "chunk_on_cpu", lambda *tensors: False)
+        whole = decode_noisy(flat, tau, 8, Q16, shape=(720, 400))
         for a, w in zip(banded, whole, strict=True):
-            torch.testing.assert_close(a, w.detach(), rtol=1e-6, atol=0.0)
+            torch.testing.assert_close(a, w, rtol=1e-6, atol=0.0)
+
+    def test_no_gradient_reaches_the_frames(self) -> None:
+        # The decoder works in place; it detaches the frames rather than fail in backward.
+        taus = _plan(12, Q16, spatial=True)
+        moduli = SimulatedModuloSensor(8, Q16, seed=2)(_smooth_scene(12, size=16), taus).moduli
+        flat = moduli.reshape(1, len(taus), -1).float().requires_grad_()
+        for shape in (None, (16, 16)):
+            out = decode_noisy(flat, torch.tensor([taus], dtype=torch.float64), 8, Q16, shape=shape)
+            assert not any(t.requires_grad for t in out)
 
     def test_module_and_function_agree(self) -> None:
         radiance = _smooth_scene(14, size=24)

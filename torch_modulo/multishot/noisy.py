@@ -181,8 +181,11 @@ def decode_noisy(
         ``(radiance, variance, used)``, each (B, n): the radiance estimate (counts per unit exposure, >= 0; or the
         counts), its variance from the noise model, and the number of frames decoded per pixel (the shortest is
         always used). All three are in :func:`work_dtype` (float64 for float64 moduli, else float32); radiance and
-        variance are ``inf`` where they are beyond its range.
+        variance are ``inf`` where they are beyond its range. No gradient flows to ``frames`` (the decoding works in
+        place; its counts are piecewise constant in the moduli anyway), as none does through
+        :func:`~torch_modulo.unwrap_multi`.
     """
+    frames = frames.detach()
     work, wide = work_dtype(frames), wide_dtype(frames.device)
     up, down = exposure_unit(tau, wide)
     t = (tau.to(device=frames.device, dtype=wide) * down.unsqueeze(1)).to(work)  # (B, M): tau / s

@@ -314,7 +314,8 @@ def plan_exposures(
         spatial: with noise, plan for the decoder with spatial evidence (``unwrap_multi(..., spatial=True)``): its
             predictions average agreeing neighbours, so the plan takes larger ratios (at least about 3.1 with the
             default ``min_ratio``) and fewer frames. Decode such a plan with ``spatial=True``.
-        longest_frames: how many frames take the longest exposure (>= 1).
+        longest_frames: how many frames take the longest exposure (>= 1). Only noise-aware decoding gains from the
+            repeats: the noise-free decoders read the longest frame alone.
 
     Returns:
         Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
@@ -350,7 +351,7 @@ def plan_exposures(
     base = 1.0 if base is None else check_real(base, "base", positive=True)
     if longest is not None:
         longest = check_real(longest, "longest", positive=True)
-    longest_frames = check_int(longest_frames, "longest_frames", 1)
+    longest_frames = check_int(longest_frames, "longest_frames", 1, _MAX_FRAMES)
     if frames is not None:
         frames = check_int(frames, "frames", 1)
         if frames < longest_frames:
@@ -423,6 +424,11 @@ def plan_exposures(
                 f"frames={frames} is too few: stops={stops:g} at bits={bits} needs {need} exposures even with "
                 f"ratios of max_ratio={limit:g}; allow {need} frames, raise max_ratio or plan fewer stops"
             )
+    if len(plan) + repeats > _MAX_FRAMES:
+        raise ValueError(
+            f"a plan of {len(plan)} exposures with longest_frames={longest_frames} holds {len(plan) + repeats} frames, "
+            f"more than {_MAX_FRAMES}; take the longest exposure fewer times"
+        )
     plan += [plan[-1]] * repeats
     if longest is None:
         return plan
@@ -445,7 +451,7 @@ def _within_budget(
     Each by bisection on its logarithm (a tolerance of 2^64 plans as an infinite one: the largest ratios, the fewest
     frames). An error names the budget and the need with ``repeats`` more (the repeats of the longest exposure
     that follow the plan)."""
-    frames = min(frames, _MAX_FRAMES)
+    asked, frames = frames + repeats, min(frames, _MAX_FRAMES)
 
     def smallest(fits: Callable[[float], list[float] | None], low: float, high: float) -> list[float] | None:
         """The plan of the smallest value in [low, high] that ``fits`` (fewer frames as it grows), or None."""
@@ -473,9 +479,8 @@ def _within_budget(
         plan = smallest(lambda tol: make(tol, min_ratio, frames), tolerance, 2.0**64)
     if plan is None:
         need = len(make(tolerance, limit, None) or []) + repeats
-        frames += repeats
         raise ValueError(
-            f"frames={frames} is too few: {scene} needs {need} exposures even with ratios of max_ratio={limit:g}; "
+            f"frames={asked} is too few: {scene} needs {need} exposures even with ratios of max_ratio={limit:g}; "
             f"allow {need} frames, raise max_ratio or plan fewer stops"
         )
     return plan
