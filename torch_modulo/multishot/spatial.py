@@ -136,7 +136,8 @@ def neighbour_prediction(
             both = worst <= limit
             shift = shift + torch.where(both, diff, 0.0)
             pairs = pairs + both
-        else:  # a pair that fails adds 0 x its difference, which must then be finite
+        else:  # a pair that fails adds 0 x its difference, which must then be finite (so a non-finite difference
+            # adds nothing even where an infinite variance passes it: the decoder's variances are finite)
             both = worst.le_(limit)
             shift.addcmul_(both, diff.nan_to_num_(0.0, 0.0, 0.0))
             pairs.add_(both)
