@@ -3,6 +3,7 @@ codes. What the folder commands write is tested end to end in test_end_to_end.py
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -266,3 +267,15 @@ def test_a_repeated_longest_exposure_is_simulated_and_decoded(tmp_path: Path) ->
     assert _cli("unwrap", stacks, out) == 0
     (done,) = _report(out, "unwrap")["done"]
     assert done["noise"] == "q16" and done["accuracy"]["gross_share"] == 0.0
+
+
+def test_auto_plans_take_the_longest_exposure_as_often_as_asked(tmp_path: Path) -> None:
+    source = tmp_path / "in"
+    source.mkdir()
+    write_image(source / "a.exr", torch.exp2(torch.linspace(0.0, 10.0, 96)).view(1, 8, 12).expand(3, -1, -1))
+    once, twice = tmp_path / "once", tmp_path / "twice"
+    assert _cli("simulate", source, once, "--noise", "q16", "--spatial") == 0
+    assert _cli("simulate", source, twice, "--noise", "q16", "--spatial", "--longest-frames", "2") == 0
+    plan = json.loads((once / "a" / "frames.json").read_text())["exposures"]
+    repeated = json.loads((twice / "a" / "frames.json").read_text())["exposures"]
+    assert repeated == plan + [plan[-1]]

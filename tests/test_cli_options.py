@@ -110,6 +110,22 @@ def test_crop_and_max_side_values() -> None:
             crop_size(bad)
 
 
+def test_longest_frames_option(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--longest-frames`` joins the options only when given, and only with auto exposures."""
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    args = parser.parse_args(["simulate", "i", "o", "--longest-frames", "2"])
+    assert JOB_OPTIONS["simulate"](args, commands["simulate"])["longest_frames"] == 2
+    args = parser.parse_args(["simulate", "i", "o", "--longest-frames", "1"])
+    assert "longest_frames" not in JOB_OPTIONS["simulate"](args, commands["simulate"])
+    args = parser.parse_args(["simulate", "i", "o", "--exposures", "1,16", "--longest-frames", "2"])
+    with pytest.raises(SystemExit):
+        JOB_OPTIONS["simulate"](args, commands["simulate"])
+    assert "--longest-frames applies to --exposures auto" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        parser.parse_args(["simulate", "i", "o", "--longest-frames", "0"])
+
+
 def test_spatial_options(capsys: pytest.CaptureFixture[str]) -> None:
     """``--spatial`` joins the options only when given; it needs a noise model, and multi shot for unwrap."""
     parser = build_parser()

@@ -265,6 +265,13 @@ def simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> 
         if args.exposures != "auto" and len(args.exposures) < 2:
             sub.error(f"--spatial plans multi-shot stacks; got one exposure, --exposures {args.exposures[0]:g}")
         options["spatial"] = True
+    if args.longest_frames != 1:  # only when given: outputs completed without it stay complete
+        if args.exposures != "auto":
+            sub.error(
+                f"--longest-frames applies to --exposures auto; repeat the longest given exposure instead "
+                f"(e.g. 1,16,256,256); got --exposures {','.join(f'{t:g}' for t in args.exposures)}"
+            )
+        options["longest_frames"] = args.longest_frames
     return _with_nonfinite(options, args.nonfinite)
 
 

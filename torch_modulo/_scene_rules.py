@@ -61,7 +61,13 @@ def scene_stops(image: torch.Tensor) -> int:
 
 
 def plan_scene(
-    image: torch.Tensor, bits: int = 8, noise: NoiseSpec = None, *, scale: float | str = "auto", spatial: bool = False
+    image: torch.Tensor,
+    bits: int = 8,
+    noise: NoiseSpec = None,
+    *,
+    scale: float | str = "auto",
+    spatial: bool = False,
+    longest_frames: int = 1,
 ) -> tuple[list[float], float, int]:
     """Protocol N's exposures for one scene (``simulate --exposures auto``): ``(exposures, scale, stops)``.
 
@@ -73,7 +79,8 @@ def plan_scene(
     and rescaled would reason about the wrong dark counts; without it, this is the plan for ``base=1`` scaled to
     end at ``L``. Where the noise-free plan would put the brightest value exactly on the rollover at the shortest
     exposure, one more stop is planned. With ``spatial``, the plan is for the decoder with spatial evidence
-    (``plan_exposures(..., spatial=True)``: fewer frames, decoded with ``unwrap_multi(..., spatial=True)``).
+    (``plan_exposures(..., spatial=True)``: fewer frames, decoded with ``unwrap_multi(..., spatial=True)``);
+    ``longest_frames`` takes its longest exposure that many times (``plan_exposures(..., longest_frames=...)``).
 
     Args:
         image: radiance >= 0 with at least one positive value, any shape.
@@ -81,6 +88,8 @@ def plan_scene(
         noise: the sensor's noise model (a :class:`~torch_modulo.noise.NoiseModel`, a preset name or its fields),
             or None.
         scale: ``"auto"`` or the radiance multiplier.
+        spatial: plan for the decoder with spatial evidence.
+        longest_frames: how many frames take the longest exposure (>= 1).
 
     Returns:
         The exposures (ascending), the radiance scale and the stops.
@@ -102,7 +111,9 @@ def plan_scene(
     factor = auto_scale if scale == "auto" else float(scale)
     longest = auto_scale / factor  # the 0.1th percentile reads 16 counts there
     for extra in (0, 1):
-        taus = plan_exposures(stops + extra, bits, noise=model, longest=longest, spatial=spatial)
+        taus = plan_exposures(
+            stops + extra, bits, noise=model, longest=longest, spatial=spatial, longest_frames=longest_frames
+        )
         if peak * factor * taus[0] * (1 + 1e-6) < 2**bits:
             break
     return taus, factor, stops + extra

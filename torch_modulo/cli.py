@@ -2,7 +2,7 @@
 
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
     torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N] [--cfa RGGB]
-                                 [--max-side N] [--crop H,W] [--linear] [--spatial]
+                                 [--max-side N] [--crop H,W] [--linear] [--spatial] [--longest-frames L]
                                                     every HDR file in IN -> a modulo frame stack per scene in OUT
     torch-modulo unwrap IN OUT [--single] [--noise MODEL] [--[no-]spatial] [--cfa RGGB] [--no-demosaic]
                                                     frame stacks (or single modulus images) -> radiance EXRs
@@ -220,6 +220,7 @@ _SIMULATE_EXAMPLES = (
     "examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
     "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
     "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --spatial          # about half the frames\n"
+    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --spatial --longest-frames 2   # the longest twice\n"
     "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
     "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
     "  torch-modulo simulate big_scenes/ small/ --max-side 512 --crop 256     # area-averaged, centre crop\n"
@@ -261,6 +262,15 @@ def _add_simulate(commands: Any) -> None:
         help="with a noise model: plan for the decoder with spatial evidence (plan_exposures(..., spatial=True): "
         "about half the frames; given --exposures are checked against its safe ratio) and record it in each stack, "
         "so that `torch-modulo unwrap` decodes it with spatial evidence (default: off, the per-pixel plan)",
+    )
+    simulate.add_argument(
+        "--longest-frames",
+        type=_positive_int,
+        default=1,
+        metavar="L",
+        help="with --exposures auto: take each plan's longest exposure L times (plan_exposures(..., "
+        "longest_frames=L)); under noise the repeats collect light, e.g. --spatial --longest-frames 2 decodes "
+        "protocol N's scenes better than the per-pixel plan with about half its frames at q16 (default: 1)",
     )
     simulate.add_argument(
         "--seed",

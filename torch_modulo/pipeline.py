@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from torch_modulo._checks import check_choice, check_flag
+from torch_modulo._checks import check_choice, check_flag, check_int
 from torch_modulo._scene_rules import (
     colour_scene,
     count_accuracy,
@@ -135,11 +135,12 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     Options: ``bits``, ``exposures`` (``"auto"``: :func:`plan_scene`; or a list), ``noise`` (None, a preset name
     or :class:`~torch_modulo.sensors.NoiseModel` fields), ``seed``, ``scale`` (``"auto"`` or a number),
     ``format``, ``truth`` and, optionally, ``nonfinite``, ``cfa``, ``linear``, ``force_exposures``, ``max_side``,
-    ``crop`` and ``spatial``. The scaling rules are in the module docstring.
+    ``crop``, ``spatial`` and ``longest_frames``. The scaling rules are in the module docstring.
 
     ``spatial`` (with a noise model): plan for the decoder with spatial evidence (about half the frames; given
     exposures are checked against its safe ratio instead), and record ``"spatial": true`` in the stack's metadata,
-    so that :func:`unwrap_job` decodes it that way.
+    so that :func:`unwrap_job` decodes it that way. ``longest_frames`` (an int >= 1, with ``"auto"`` exposures):
+    the plan's longest exposure taken that many times (under noise the repeats collect light).
 
     ``max_side`` (an int) shrinks the scene first by area averaging, by the smallest integer factor that brings its
     longer side to at most that (:func:`torch_modulo.protocols.downsample_area`, as the benchmarks do); ``crop``
@@ -187,7 +188,10 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         notes += cropped
         facts["cfa"] = cfa
     if options["exposures"] == "auto":
-        taus, scale, facts["stops"] = plan_scene(image, bits, noise, scale=options["scale"], spatial=spatial)
+        repeats = check_int(options.get("longest_frames", 1), "longest_frames", 1)
+        taus, scale, facts["stops"] = plan_scene(
+            image, bits, noise, scale=options["scale"], spatial=spatial, longest_frames=repeats
+        )
         facts["scaling"] = "auto exposures (protocol N)"
     else:
         taus = [float(t) for t in options["exposures"]]
