@@ -49,6 +49,13 @@ class TestDesign:
         small = design.design(8, "q16", 12, frames=3)
         assert small.modulo.frames <= 3
 
+    def test_a_repeated_longest_exposure_is_predicted_as_simulated(self, answer: design.DesignAnswer) -> None:
+        twice = design.design(8, "q16", 12, longest_frames=2)
+        assert list(twice.modulo.exposures) == [*answer.modulo.exposures, answer.modulo.exposures[-1]]
+        assert twice.modulo.median_error < answer.modulo.median_error  # the repeat collects light
+        simulated = design.simulate_median(twice.modulo, 8, "q16", values=40_000, seed=1)
+        assert design.agrees(twice.modulo.median_error, simulated), simulated
+
     def test_to_dict_has_the_fields_of_the_json(self, answer: design.DesignAnswer) -> None:
         d = answer.to_dict()
         for key in ("exposures", "modulo_median_error", "conventional_exposures", "conventional_median_error"):
@@ -73,6 +80,9 @@ class TestDesignCommand:
         d = json.loads(capsys.readouterr().out)
         assert d["exposures"] == tm.plan_exposures(12, 8, noise="q16", longest=1.0)
         assert d["conventional_median_error"] <= d["modulo_median_error"]
+        argv = ["design", "--bits", "8", "--noise", "q16", "--stops", "12", "--longest-frames", "2", "--json"]
+        assert main(argv) == 0
+        assert json.loads(capsys.readouterr().out)["exposures"] == [*d["exposures"], d["exposures"][-1]]
 
     def test_text_and_plot(self, capsys: pytest.CaptureFixture[str], tmp_path) -> None:
         pytest.importorskip("matplotlib")

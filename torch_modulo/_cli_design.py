@@ -43,6 +43,14 @@ def add_design(commands: Any) -> None:
     design.add_argument(
         "--frames", type=positive_int, default=None, help="a budget: the best modulo plan of at most this many frames"
     )
+    design.add_argument(
+        "--longest-frames",
+        type=positive_int,
+        default=1,
+        metavar="L",
+        help="take the modulo plan's longest exposure L times (under noise the repeats collect light; --frames "
+        "counts them; default: 1)",
+    )
     design.add_argument("--json", action="store_true", help="print one JSON object instead of the text report")
     design.add_argument(
         "--plot",
@@ -61,7 +69,9 @@ def run_design(args: argparse.Namespace) -> int:
         print("torch-modulo design: error: --noise none has no noise to design for; give a model", file=sys.stderr)
         return 2
     try:
-        answer = design(args.bits, NoiseModel(**args.noise), args.stops, frames=args.frames)
+        answer = design(
+            args.bits, NoiseModel(**args.noise), args.stops, frames=args.frames, longest_frames=args.longest_frames
+        )
         if args.plot:
             plot(answer, args.plot)
     except (ValueError, TypeError, ImportError, OSError) as error:

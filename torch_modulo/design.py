@@ -103,7 +103,12 @@ class DesignAnswer:
 
 
 def design(
-    bits: int, noise: NoiseModel | str, stops: float, frames: int | None = None, sigmas: float = 3.0
+    bits: int,
+    noise: NoiseModel | str,
+    stops: float,
+    frames: int | None = None,
+    sigmas: float = 3.0,
+    longest_frames: int = 1,
 ) -> DesignAnswer:
     """The modulo plan for ``stops`` stops (at most ``frames`` exposures, if given), its predicted error, and the
     conventional plan with the fewest frames whose predicted median error is at most the modulo plan's.
@@ -115,6 +120,8 @@ def design(
         frames: a budget for the modulo plan (:func:`~torch_modulo.plan_exposures`'s ``frames``), or None for
             the default plan.
         sigmas: the modulo decoder's gate.
+        longest_frames: how many frames of the modulo plan take its longest exposure (``plan_exposures``'s
+            ``longest_frames``; the budget counts them).
 
     Returns:
         A :class:`DesignAnswer`. Where no conventional plan of up to 256 frames is as good, its plan is the
@@ -131,7 +138,9 @@ def design(
     model = as_noise_model(noise)
     if model is None:
         raise ValueError("noise must be a NoiseModel or a preset name; got None")
-    taus = plan_exposures(stops, bits, noise=model, sigmas=sigmas, longest=1.0, frames=frames)
+    taus = plan_exposures(
+        stops, bits, noise=model, sigmas=sigmas, longest=1.0, frames=frames, longest_frames=longest_frames
+    )
     modulo = predict_modulo(taus, bits, model, sigmas, stops)
     try:
         conventional = plan_conventional(stops, bits, model, shortest=taus[0], target_median=modulo.median_error)
