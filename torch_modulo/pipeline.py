@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from torch_modulo._checks import check_choice, check_flag, check_int
+from torch_modulo._checks import check_choice, check_flag
 from torch_modulo._scene_rules import (
     colour_scene,
     count_accuracy,
@@ -188,10 +188,9 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         notes += cropped
         facts["cfa"] = cfa
     if options["exposures"] == "auto":
-        repeats = check_int(options.get("longest_frames", 1), "longest_frames", 1)
-        taus, scale, facts["stops"] = plan_scene(
-            image, bits, noise, scale=options["scale"], spatial=spatial, longest_frames=repeats
-        )
+        repeats = options.get("longest_frames", 1)  # plan_exposures checks it
+        plan = plan_scene(image, bits, noise, scale=options["scale"], spatial=spatial, longest_frames=repeats)
+        taus, scale, facts["stops"] = plan
         facts["scaling"] = "auto exposures (protocol N)"
     else:
         taus = [float(t) for t in options["exposures"]]
