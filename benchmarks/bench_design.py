@@ -11,6 +11,7 @@ the simulated one, or within 0.002 absolute. Prints a table and a JSON summary; 
 
     python benchmarks/bench_design.py                    # the three cases of issue #34
     python benchmarks/bench_design.py --case 12 q16 20   # another case (repeatable)
+    python benchmarks/bench_design.py --longest-frames 2 # the modulo plans with their longest exposure twice
 """
 
 from __future__ import annotations
@@ -29,12 +30,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--case", nargs=3, action="append", metavar=("BITS", "NOISE", "STOPS"), help="bits noise stops")
     parser.add_argument("--values", type=int, default=200_000, help="radiances in the simulated ramp")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--longest-frames", type=int, default=1, help="frames at the modulo plan's longest exposure")
     args = parser.parse_args(argv)
     cases = [(int(b), n, float(s)) for b, n, s in args.case] if args.case else list(CASES)
     rows = []
     print(f"{'case':<28} {'sensor':<13} {'frames':>6} {'predicted':>10} {'simulated':>10} {'agrees':>7}")
     for bits, noise, stops in cases:
-        answer = design.design(bits, noise, stops)
+        answer = design.design(bits, noise, stops, longest_frames=args.longest_frames)
         for prediction in (answer.modulo, answer.conventional):
             simulated = design.simulate_median(prediction, bits, noise, values=args.values, seed=args.seed)
             agrees = design.agrees(prediction.median_error, simulated)
