@@ -10,7 +10,6 @@ from typing import Literal, Protocol, cast, overload
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from torch_modulo._checks import (
     MAX_BITS,
@@ -24,7 +23,7 @@ from torch_modulo._checks import (
     like_memory_format,
     validation_enabled,
 )
-from torch_modulo.cfa import check_cfa
+from torch_modulo.cfa import check_cfa, merge_planes, split_planes
 from torch_modulo.multishot.counting import METHODS, count_rollovers
 from torch_modulo.multishot.noisy import decode_noisy
 from torch_modulo.multishot.planning import dark_rollover_message, unsafe_ratio_message
@@ -357,10 +356,8 @@ def _by_colour_plane(
 ) -> tuple[torch.Tensor, ...]:
     """The spatial decode of (B, M, 1, H, W) mosaics, its four colour planes as the channels of (B, M, 4, H/2, W/2)
     images, put back into (B, 1, H, W) mosaics: ``(radiance,)`` or ``(radiance, variance)``."""
-    b, m, _, h, w = stack.shape
-    planes = F.pixel_unshuffle(stack.reshape(b * m, 1, h, w), 2).reshape(b, m, 4, h // 2, w // 2)
     out = unwrap_multi(
-        planes,
+        split_planes(stack),
         tau,
         bits,
         method,
@@ -370,7 +367,7 @@ def _by_colour_plane(
         return_counts=return_counts,
         return_variance=return_variance,
     )
-    return tuple(F.pixel_shuffle(o, 2) for o in (out if isinstance(out, tuple) else (out,)))
+    return tuple(merge_planes(o) for o in (out if isinstance(out, tuple) else (out,)))
 
 
 class _FrameStackLike(Protocol):
