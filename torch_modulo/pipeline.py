@@ -311,6 +311,7 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
                 stack.moduli, stack.exposures, stack.bits, rule, noise=noise, spatial=spatial, cfa=cfa
             )[0]
         notes += [str(w.message) for w in caught]
+    recorded = {"spatial": True} if spatial else {}
     radiance, colour = restored_colour(radiance, cfa, demosaic=options.get("demosaic", True))
     metadata = {
         "source": task.name,
@@ -318,14 +319,14 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
         "exposures": stack.exposure_matrix()[0].tolist(),
         "method": rule,
         "noise": noise.to_dict() if noise is not None else None,
-        **({"spatial": True} if spatial else {}),
+        **recorded,
         "kind": stack.kind,
         "unit": "counts per unit exposure",
         **colour,
     }
     if "radiance_scale" in stack.metadata:
         metadata["radiance_scale"] = stack.metadata["radiance_scale"]
-    info: dict[str, Any] = {"noise": noise_name(noise), **({"spatial": True} if spatial else {})}
+    info: dict[str, Any] = {"noise": noise_name(noise), **recorded}
     truth = matching_truth(_truth(task.source), radiance.shape, cfa)
     if truth is not None:
         info["accuracy"] = radiance_accuracy(radiance, truth)
