@@ -6,10 +6,11 @@ For the multi-exposure capture and the multi-shot unwrap the data is the (B, M, 
 exposures), so their reference is the clone of that stack; every other operation is compared with the clone of its
 (B, C, H, W) input.
 
-The noise-aware rows decode (and simulate) the stack of a ``plan_exposures(16, bits, noise="q16")`` plan, 7 frames
-at 8 bits, for ``--noise-batch`` items (default 2) of the shape's (C, H, W): ``unwrap_multi noise`` decodes it with
-the noise model, ``unwrap_multi noise spatial`` with spatial evidence (``spatial=True``), ``simulate noise`` is
-the noisy ``SimulatedModuloSensor`` that captures it; all against the clone of that stack.
+The noise-aware rows decode (and simulate) the stack of a ``plan_exposures(16, bits, noise="q16")`` plan (4 frames
+at 8 bits) for ``--noise-batch`` items (default 2) of the shape's (C, H, W): ``unwrap_multi noise`` decodes it with
+the defaults (spatial evidence), ``simulate noise`` is the noisy ``SimulatedModuloSensor`` that captures it;
+``unwrap_multi noise per-pixel`` decodes the plan for each pixel alone (``spatial=False``, 7 frames) that way. Each
+against the clone of its stack.
 
 The rows marked "compiled" time the layers under ``torch.compile(layer, fullgraph=True)`` (Inductor), which skips
 the value checks by itself; compilation happens in the warm-up call and is not timed. ``--no-compile`` skips them
@@ -65,10 +66,12 @@ def bench(name: str, fn: Callable[[], object], reference: torch.Tensor, repeats:
     return {"op": name, "ms": 1e3 * op, "clone_ms": 1e3 * ref, "ratio": op / ref}
 
 
-def noisy_stack(radiance: torch.Tensor, bits: int, items: int) -> tuple[torch.Tensor, torch.Tensor, list[float]]:
-    """The radiance of ``items`` batch items scaled to the q16 plan for 16 stops (the radiance spans 16 stops), its
-    noisy moduli and the plan."""
-    plan = tm.plan_exposures(16, bits, noise="q16")
+def noisy_stack(
+    radiance: torch.Tensor, bits: int, items: int, spatial: bool = True
+) -> tuple[torch.Tensor, torch.Tensor, list[float]]:
+    """The radiance of ``items`` batch items scaled to the q16 plan for 16 stops (with ``spatial``: for the decoder
+    with spatial evidence; the radiance spans 16 stops), its noisy moduli and the plan."""
+    plan = tm.plan_exposures(16, bits, noise="q16", spatial=spatial)
     scene = radiance[:items] * (2.0**15 / plan[-1])  # 1 to 2**16 counts at the longest exposure
     sensor = tm.sensors.SimulatedModuloSensor(bits, "q16", seed=0)
     return scene, sensor(scene, plan).moduli, plan
@@ -76,13 +79,14 @@ def noisy_stack(radiance: torch.Tensor, bits: int, items: int) -> tuple[torch.Te
 
 def noisy_rows(radiance: torch.Tensor, bits: int, items: int, repeats: int) -> list[dict[str, float | str]]:
     scene, moduli, plan = noisy_stack(radiance, bits, items)
+    _, alone, alone_plan = noisy_stack(radiance, bits, items, spatial=False)
     sensor = tm.sensors.SimulatedModuloSensor(bits, "q16", seed=0)
     return [
         bench("unwrap_multi noise", lambda: tm.unwrap_multi(moduli, plan, bits, noise="q16"), moduli, repeats),
         bench(
-            "unwrap_multi noise spatial",
-            lambda: tm.unwrap_multi(moduli, plan, bits, noise="q16", spatial=True),
-            moduli,
+            "unwrap_multi noise per-pixel",
+            lambda: tm.unwrap_multi(alone, alone_plan, bits, noise="q16", spatial=False),
+            alone,
             repeats,
         ),
         bench("simulate noise", lambda: sensor(scene, plan), moduli, repeats),
@@ -116,13 +120,14 @@ def compiled_rows(
 
 
 def noisy_compiled_rows(radiance: torch.Tensor, bits: int, repeats: int, items: int) -> list[dict[str, float | str]]:
-    """The noise-aware decode under ``torch.compile(fullgraph=True)``, per pixel and with spatial evidence."""
-    _, noisy, plan = noisy_stack(radiance, bits, items)
-    exposures = torch.tensor(plan, dtype=torch.float64, device=radiance.device)
+    """The noise-aware decode under ``torch.compile(fullgraph=True)``, with spatial evidence (the default) and per
+    pixel, each on its own plan."""
     rows = []
-    for name, spatial in (("unwrap_multi noise compiled", False), ("unwrap_multi noise spatial compiled", True)):
+    for name, spatial in (("unwrap_multi noise compiled", True), ("unwrap_multi noise per-pixel compiled", False)):
+        _, noisy, plan = noisy_stack(radiance, bits, items, spatial)
+        exposures = torch.tensor(plan, dtype=torch.float64, device=radiance.device)
         fn = torch.compile(tm.MultiExposureUnwrap(bits, noise="q16", spatial=spatial), fullgraph=True, dynamic=False)
-        rows.append(bench(name, lambda fn=fn: fn(noisy, exposures), noisy, repeats))
+        rows.append(bench(name, lambda fn=fn, noisy=noisy, exposures=exposures: fn(noisy, exposures), noisy, repeats))
     return rows
 
 

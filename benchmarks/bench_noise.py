@@ -6,8 +6,8 @@ percentile of its positive values reads 16 counts at the longest exposure (1); t
 noise, q = 16 with 16 e-):
 
 - modulo: exposures from ``plan_exposures(stops, 8, noise=noise)`` (the longest normalised to 1), captured by
-  ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)``, the defaults (each pixel decoded
-  alone); with ``--spatial`` the plan and the decoder with spatial evidence (``spatial=True`` in both);
+  ``SimulatedModuloSensor`` and decoded by ``unwrap_multi(..., noise=noise)``, the defaults (the plan and the
+  decoder with spatial evidence); with ``--no-spatial`` both for each pixel decoded alone (``spatial=False``);
 - blind: the noise-free plan (ratios near 2^N) decoded by the noise-free robust rule, as before noise-aware decoding;
 - oracle: the longest frame's noisy count with its rollover count known (the same noise draws: the simulated
   intensity sensor with bits=53 on float64 input and the same seed), divided by its exposure;
@@ -22,9 +22,9 @@ frames used; for the modulo decoder, the share of values more than 3 of its repo
 
     python benchmarks/bench_noise.py                 # all dev scenes, both noise models
     python benchmarks/bench_noise.py --limit 3       # a quick look
-    python benchmarks/bench_noise.py --spatial       # the plan and decoder with spatial evidence
+    python benchmarks/bench_noise.py --no-spatial    # the plan and decoder for each pixel alone
     python benchmarks/bench_noise.py --frames 6 --modulo-only   # plans of at most 6 frames: frames against error
-    python benchmarks/bench_noise.py --spatial --longest-frames 2 --modulo-only   # the longest exposure twice
+    python benchmarks/bench_noise.py --longest-frames 2 --modulo-only   # the longest exposure twice
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def blind_scores(batch: torch.Tensor, radiance: torch.Tensor, stops: int, noise:
 
 def modulo_plan(stops: int, noise: NoiseModel, args: argparse.Namespace) -> list[float]:
     """The noise-aware plan, the longest exposure normalised to 1: ``plan_exposures``, for the decoder with spatial
-    evidence with ``--spatial``; with ``--frames K``, the best plan of at most ``K`` exposures (``frames=``) where
+    evidence unless ``--no-spatial``; with ``--frames K``, the best plan of at most ``K`` exposures (``frames=``) where
     that is fewer than the default plan's (a scene whose largest ratios need more than ``K`` takes the fewest they
     need), else the default plan; with ``--longest-frames L``, the longest exposure taken ``L`` times."""
     options = {
@@ -116,6 +116,7 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
         "noise": noise_name,
         "stops": stops,
         "frames": len(taus),
+        "spatial": args.spatial,
         "seconds": seconds,
         "modulo": {**scores(decoded[0], radiance), "beyond_3sd": calibration(decoded[0], variance[0], radiance)},
         "oracle": scores(truth_counts[0, -1] / taus[-1], radiance),
@@ -135,7 +136,11 @@ def run_scene(path: Path, noise_name: str, seed: int, args: argparse.Namespace) 
 def summarise(rows: list[dict[str, object]], noise_name: str) -> dict[str, object]:
     part = [r for r in rows if r["noise"] == noise_name]
     keys = [k for k in ["modulo", "oracle", "robust", "blind", *INTENSITY_KEYS] if k in part[0]]
-    out: dict[str, object] = {"scenes": len(part), "frames_modulo": statistics.mean(r["frames"] for r in part)}
+    out: dict[str, object] = {
+        "scenes": len(part),
+        "spatial": part[0]["spatial"],
+        "frames_modulo": statistics.mean(r["frames"] for r in part),
+    }
     for key in keys:
         out[key] = {s: statistics.mean(r[key][s] for r in part) for s in ("median", "p99", "gross", *BANDS)}
         if key.startswith("intensity") or key == "blind":
@@ -151,7 +156,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", nargs="+", default=list(NOISES), choices=list(NOISES))
     parser.add_argument("--tolerance", type=float, default=1.2, help="plan_exposures tolerance")
     parser.add_argument("--min-ratio", type=float, default=1.5, help="plan_exposures min_ratio")
-    parser.add_argument("--spatial", action="store_true", help="the plan and decoder with spatial evidence")
+    parser.add_argument(
+        "--spatial",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="the plan and decoder with spatial evidence (the default), or for each pixel alone (--no-spatial)",
+    )
     parser.add_argument(
         "--longest-frames", type=positive_int, default=1, help="frames at the longest exposure (plan_exposures)"
     )

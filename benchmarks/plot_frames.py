@@ -1,6 +1,6 @@
 """Frames against error on protocol N: a table and a figure from ``bench_noise.py --json`` files.
 
-Each file is one run of ``python benchmarks/bench_noise.py --modulo-only [--spatial] [--frames K] --json FILE``;
+Each file is one run of ``python benchmarks/bench_noise.py --modulo-only [--no-spatial] [--frames K] --json FILE``;
 its label is the file name's stem. For each noise model the table gives the run's mean frames, mean median relative
 error (and as a multiple of the oracle's on the same frames), gross share and the median in each third of the
 radiance; the figure plots the median error over the oracle's against frames, one marker per run, per pixel and with
@@ -8,7 +8,8 @@ spatial evidence apart (needs matplotlib).
 
     python benchmarks/plot_frames.py runs/*.json --plot docs/images/frames_against_error.png
 
-A run is taken as one with spatial evidence when its file name holds "spatial".
+A run is one with spatial evidence where its summary says so (runs written before it did: where the file name holds
+"spatial").
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ def rows(paths: list[Path]) -> list[dict[str, object]]:
     out = []
     for path in paths:
         data = json.loads(path.read_text())
-        spatial = "spatial" in path.stem
         for noise, summary in data["summary"].items():
+            spatial = summary.get("spatial", "spatial" in path.stem)
             modulo, oracle = summary["modulo"], summary["oracle"]
             out.append(
                 {

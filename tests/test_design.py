@@ -41,9 +41,21 @@ class TestDesign:
     def test_a_wrong_prediction_is_caught(self, answer: design.DesignAnswer) -> None:
         # The check can fail: the same plan simulated with a noisier sensor disagrees with this prediction.
         noisier = NoiseModel(electrons_per_count=4.0, read_noise=16.0)
+        assert not design.agrees(answer.modulo.median_error, design.simulate_median(answer.modulo, 8, noisier, 40_000))
+        alone = design.design(8, "q16", 12, spatial=False)
         with pytest.warns(UserWarning, match="unsafe"):  # the decoder also says the plan is unsafe for that sensor
-            simulated = design.simulate_median(answer.modulo, 8, noisier, values=40_000)
-        assert not design.agrees(answer.modulo.median_error, simulated)
+            simulated = design.simulate_median(alone.modulo, 8, noisier, values=40_000)
+        assert not design.agrees(alone.modulo.median_error, simulated)
+
+    def test_each_pixel_alone_takes_more_frames_and_is_predicted_as_simulated(
+        self, answer: design.DesignAnswer
+    ) -> None:
+        alone = design.design(8, "q16", 12, spatial=False)
+        assert answer.modulo.spatial and not alone.modulo.spatial and answer.to_dict()["spatial"] is True
+        assert list(alone.modulo.exposures) == tm.plan_exposures(12, 8, noise="q16", longest=1.0, spatial=False)
+        assert alone.modulo.frames > answer.modulo.frames
+        simulated = design.simulate_median(alone.modulo, 8, "q16", values=40_000, seed=1)
+        assert design.agrees(alone.modulo.median_error, simulated), simulated
 
     def test_frame_budget(self) -> None:
         small = design.design(8, "q16", 12, frames=3)

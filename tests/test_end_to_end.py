@@ -795,7 +795,7 @@ class TestColourSensor:
         restored, meta = read_image(out / "s.exr", with_metadata=True, dtype=torch.float64)
         assert restored.shape == (3, 32, 48) and meta["cfa"] == "RGGB" and meta["demosaic"] == "malvar"
         noise = NoiseModel(**stack.metadata["noise"])
-        expected = demosaic(unwrap_multi(stack.moduli, stack.exposures, 8, noise=noise), "RGGB")[0]
+        expected = demosaic(unwrap_multi(stack.moduli, stack.exposures, 8, noise=noise, cfa="RGGB"), "RGGB")[0]
         torch.testing.assert_close(restored.float(), expected)  # unwrapped first, then demosaiced
         accuracy = _report(out, "unwrap")["done"][0]["accuracy"]  # RGB scored against the RGB truth
         assert accuracy["median_relative_error"] < 0.08 and accuracy["gross_share"] < 0.005

@@ -180,12 +180,15 @@ class TestScaling:
         medians, gross = {}, {}
         for dark in (0.0, 5.0, 20.0):
             noise = NoiseModel(dark_current=dark)
-            taus, scale, stops = plan_scene(image, 8, noise)
+            # each pixel alone: the scene is independent draws per pixel, where no neighbour agrees
+            taus, scale, stops = plan_scene(image, 8, noise, spatial=False)
             # a fixed point: the plan made at its own shortest exposure, ending at the longest (1)
-            assert taus[-1] == 1.0 and taus == pytest.approx(plan_exposures(stops, 8, noise=noise, base=taus[0]))
+            fixed = plan_exposures(stops, 8, noise=noise, base=taus[0], spatial=False)
+            assert taus[-1] == 1.0 and taus == pytest.approx(fixed)
             radiance = (image * scale)[None]
             stack = SimulatedModuloSensor(bits=8, noise=noise, seed=0)(radiance, taus)
-            relative = (unwrap_multi(stack.moduli, stack.exposures, 8, noise=noise) - radiance).abs() / radiance
+            decoded = unwrap_multi(stack.moduli, stack.exposures, 8, noise=noise, spatial=False)
+            relative = (decoded - radiance).abs() / radiance
             medians[dark], gross[dark] = float(relative.median()), float((relative > 0.5).double().mean())
         # measured: medians 1.94%, 1.95%, 1.92%, gross 0.07%, 0.10%, 0.29% (before the fix: 2.8% / 1.0%, 5.6% / 21%)
         assert medians[0.0] < 0.03
@@ -267,11 +270,16 @@ class TestSpatial:
             )
             for spatial in (False, True)
         }
-        assert infos[True]["spatial"] is True and "spatial" not in infos[False]
+        assert infos[True]["spatial"] is True and infos[False]["spatial"] is False
         assert len(infos[True]["exposures"]) < len(infos[False]["exposures"])
         stack = FileSensor(tmp_path / "stackTrue").read()
         assert stack.metadata["spatial"] is True
-        assert "spatial" not in FileSensor(tmp_path / "stackFalse").read().metadata
+        assert FileSensor(tmp_path / "stackFalse").read().metadata["spatial"] is False
+        default = simulate_job(Task("s.exr", str(source), (str(tmp_path / "d"),)), {**self.OPTIONS, "truth": True})
+        assert default["exposures"] == infos[True]["exposures"] and default["spatial"] is True  # the default
+        quiet = {**self.OPTIONS, "noise": None, "truth": False}
+        quiet = simulate_job(Task("s.exr", str(source), (str(tmp_path / "q"),)), quiet)
+        assert "spatial" not in quiet and "warnings" not in quiet  # noise-free: nothing to say
         task = Task("stack", str(tmp_path / "stackTrue"), (str(tmp_path / "r.exr"),))
         info = unwrap_job(task, self.UNWRAP)  # spatial, as the stack records
         assert info["spatial"] is True and info["accuracy"]["gross_share"] == 0.0 and "warnings" not in info
@@ -280,7 +288,7 @@ class TestSpatial:
         assert read_image(tmp_path / "r.exr", with_metadata=True)[1]["spatial"] is True
         info = unwrap_job(task, {**self.UNWRAP, "spatial": False})  # per pixel, on request
         assert "spatial" not in info
-        expected = unwrap_multi(stack.moduli, stack.exposures, 8, noise="q16")[0]
+        expected = unwrap_multi(stack.moduli, stack.exposures, 8, noise="q16", spatial=False)[0]
         torch.testing.assert_close(read_image(tmp_path / "r.exr"), expected.float())
         info = unwrap_job(task, {**self.UNWRAP, "spatial": True, "noise": None})  # no model: noise-free, said
         assert "spatial" not in info and "decoded noise-free" in info["warnings"][0]

@@ -19,7 +19,8 @@ _DESCRIPTION = (
     "the same bits and noise that reaches the same predicted median error: its exposures and frames. A scene of S "
     "stops spans E_min to 2**S E_min, where E_min reads one count at the longest exposure (1.0). The predictions are "
     "models of the library's decoders on a log-uniform ramp of radiances (benchmarks/bench_design.py checks them "
-    "against simulation)."
+    "against simulation): by default the modulo decoder with spatial evidence on a smooth scene; --no-spatial plans "
+    "and predicts for each pixel decoded alone (about twice the frames; what a finely textured scene needs)."
 )
 
 
@@ -51,6 +52,13 @@ def add_design(commands: Any) -> None:
         help="take the modulo plan's longest exposure L times (under noise the repeats collect light; --frames "
         "counts them; default: 1)",
     )
+    design.add_argument(
+        "--spatial",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="plan and predict for the modulo decoder with spatial evidence (the default), or for each pixel "
+        "decoded alone (--no-spatial)",
+    )
     design.add_argument("--json", action="store_true", help="print one JSON object instead of the text report")
     design.add_argument(
         "--plot",
@@ -70,7 +78,12 @@ def run_design(args: argparse.Namespace) -> int:
         return 2
     try:
         answer = design(
-            args.bits, NoiseModel(**args.noise), args.stops, frames=args.frames, longest_frames=args.longest_frames
+            args.bits,
+            NoiseModel(**args.noise),
+            args.stops,
+            frames=args.frames,
+            longest_frames=args.longest_frames,
+            spatial=args.spatial,
         )
         if args.plot:
             plot(answer, args.plot)
@@ -95,7 +108,8 @@ def _report(d: dict[str, Any]) -> str:
     return "\n".join(
         [
             f"{d['bits']}-bit sensors, {d['noise']}, {d['stops']:g} stops",
-            f"modulo:       {d['frames']} frames, predicted median relative error {d['modulo_median_error']:.3g}, "
+            f"modulo:       {d['frames']} frames ({'spatial evidence' if d['spatial'] else 'each pixel alone'}), "
+            f"predicted median relative error {d['modulo_median_error']:.3g}, "
             f"more than 50% off {100 * d['modulo_gross_share']:.3g}%",
             f"  exposures   {plan(d['exposures'])}",
             f"conventional: {d['conventional_frames']} frames for {reach} median error: "

@@ -264,7 +264,8 @@ def simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> 
             sub.error("--spatial plans for the noise-aware decoder: it needs a noise model; got --noise none")
         if args.exposures != "auto" and len(args.exposures) < 2:
             sub.error(f"--spatial plans multi-shot stacks; got one exposure, --exposures {args.exposures[0]:g}")
-        options["spatial"] = True
+    if args.spatial is not None:  # only when given: the default is the pipeline's (spatial evidence)
+        options["spatial"] = args.spatial
     if args.longest_frames != 1:  # only when given: outputs completed without it stay complete
         if args.exposures != "auto":
             sub.error(

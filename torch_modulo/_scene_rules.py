@@ -66,7 +66,7 @@ def plan_scene(
     noise: NoiseSpec = None,
     *,
     scale: float | str = "auto",
-    spatial: bool = False,
+    spatial: bool = True,
     longest_frames: int = 1,
 ) -> tuple[list[float], float, int]:
     """Protocol N's exposures for one scene (``simulate --exposures auto``): ``(exposures, scale, stops)``.
@@ -78,8 +78,8 @@ def plan_scene(
     exposures that are captured: under dark current (electrons per unit exposure) a plan made at other exposures
     and rescaled would reason about the wrong dark counts; without it, this is the plan for ``base=1`` scaled to
     end at ``L``. Where the noise-free plan would put the brightest value exactly on the rollover at the shortest
-    exposure, one more stop is planned. With ``spatial``, the plan is for the decoder with spatial evidence
-    (``plan_exposures(..., spatial=True)``: fewer frames, decoded with ``unwrap_multi(..., spatial=True)``);
+    exposure, one more stop is planned. With ``spatial`` (the default), the plan is for the decoder with spatial
+    evidence (``plan_exposures``' and ``unwrap_multi``'s default: fewer frames); False plans for each pixel alone;
     ``longest_frames`` takes its longest exposure that many times (``plan_exposures(..., longest_frames=...)``).
 
     Args:
@@ -88,7 +88,7 @@ def plan_scene(
         noise: the sensor's noise model (a :class:`~torch_modulo.noise.NoiseModel`, a preset name or its fields),
             or None.
         scale: ``"auto"`` or the radiance multiplier.
-        spatial: plan for the decoder with spatial evidence.
+        spatial: plan for the decoder with spatial evidence (False: for each pixel decoded alone).
         longest_frames: how many frames take the longest exposure (>= 1).
 
     Returns:

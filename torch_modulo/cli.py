@@ -2,12 +2,12 @@
 
     torch-modulo demo [--out DIR] [--scene FILE]    simulate, unwrap, tone-map and write files for one scene
     torch-modulo simulate IN OUT [--bits 8] [--exposures auto] [--noise photon-counting] [--seed N] [--cfa RGGB]
-                                 [--max-side N] [--crop H,W] [--linear] [--spatial] [--longest-frames L]
+                                 [--max-side N] [--crop H,W] [--linear] [--[no-]spatial] [--longest-frames L]
                                                     every HDR file in IN -> a modulo frame stack per scene in OUT
     torch-modulo unwrap IN OUT [--single] [--noise MODEL] [--[no-]spatial] [--cfa RGGB] [--no-demosaic]
                                                     frame stacks (or single modulus images) -> radiance EXRs
     torch-modulo tonemap IN OUT [--op histogram]    radiance files -> sRGB PNGs (frames, confidence maps skipped)
-    torch-modulo design --bits B --noise MODEL --stops S [--frames K] [--json] [--plot FILE]
+    torch-modulo design --bits B --noise MODEL --stops S [--frames K] [--no-spatial] [--json] [--plot FILE]
                                                     a modulo sensor's plan and error against a conventional one
 
 The per-file work lives in :mod:`torch_modulo.pipeline`, each folder command's inputs in
@@ -219,8 +219,8 @@ _SIMULATE_DESCRIPTION = (
 _SIMULATE_EXAMPLES = (
     "examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
     "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
-    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --spatial          # about half the frames\n"
-    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --spatial --longest-frames 2   # the longest twice\n"
+    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --no-spatial       # each pixel decoded alone: more frames\n"
+    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --longest-frames 2 # the longest exposure twice\n"
     "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
     "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
     "  torch-modulo simulate big_scenes/ small/ --max-side 512 --crop 256     # area-averaged, centre crop\n"
@@ -258,10 +258,12 @@ def _add_simulate(commands: Any) -> None:
     _add_noise(simulate, "the sensor's noise model (default: the first preset below)", "; the default, also 'default'")
     simulate.add_argument(
         "--spatial",
-        action="store_true",
-        help="with a noise model: plan for the decoder with spatial evidence (plan_exposures(..., spatial=True): "
-        "about half the frames; given --exposures are checked against its safe ratio) and record it in each stack, "
-        "so that `torch-modulo unwrap` decodes it with spatial evidence (default: off, the per-pixel plan)",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="with a noise model: plan for the decoder with spatial evidence (plan_exposures' default: about half "
+        "the frames of the per-pixel plan; given --exposures are checked against its safe ratio), or for each pixel "
+        "decoded alone (--no-spatial); each stack records which, so that `torch-modulo unwrap` decodes it so "
+        "(default: spatial evidence)",
     )
     simulate.add_argument(
         "--longest-frames",
@@ -269,8 +271,8 @@ def _add_simulate(commands: Any) -> None:
         default=1,
         metavar="L",
         help="with --exposures auto: take each plan's longest exposure L times (plan_exposures(..., "
-        "longest_frames=L)); under noise the repeats collect light, e.g. --spatial --longest-frames 2 decodes "
-        "protocol N's scenes better than the per-pixel plan with about half its frames at q16 (default: 1)",
+        "longest_frames=L)); under noise the repeats collect light, e.g. --longest-frames 2 decodes protocol "
+        "N's scenes better than the per-pixel plan with about half its frames at q16 (default: 1)",
     )
     simulate.add_argument(
         "--seed",
@@ -358,7 +360,7 @@ _UNWRAP_DESCRIPTION = (
 _UNWRAP_EXAMPLES = (
     "examples:\n  torch-modulo unwrap stacks/ radiance/\n"
     "  torch-modulo unwrap stacks/ radiance/ --noise none      # noise-free decoding (the robust rule)\n"
-    "  torch-modulo unwrap stacks/ radiance/ --spatial         # spatial evidence for every noisy stack\n"
+    "  torch-modulo unwrap stacks/ radiance/ --no-spatial      # each pixel alone, whatever the stacks record\n"
     "  torch-modulo unwrap single/ radiance/ --single          # stacks of one exposure, scored if truth is there\n"
     "  torch-modulo unwrap camera_frames/ radiance/ --single --bits 8 --method fast\n"
     "  torch-modulo unwrap big_frames/ radiance/ --single --bits 8 --method learned:levels=False   # faster\n"
@@ -407,9 +409,9 @@ def _add_unwrap(commands: Any) -> None:
         "--spatial",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="multi shot with a noise model: decode with spatial evidence (unwrap_multi(..., spatial=True); a "
-        "mosaic's colour planes apart), or not (--no-spatial) (default: as each stack records, spatial where "
-        "simulate --spatial planned it)",
+        help="multi shot with a noise model: decode with spatial evidence (unwrap_multi's default; a mosaic's "
+        "colour planes apart), or each pixel alone (--no-spatial) (default: as each stack records, as simulate "
+        "planned it; spatial evidence where it records nothing)",
     )
     unwrap.add_argument(
         "--confidence",

@@ -8,11 +8,12 @@ noise-aware plan (:func:`~torch_modulo.plan_exposures`), its predicted error
 predicted median error is as low (:func:`~torch_modulo.multishot.prediction.plan_conventional`), with its own
 prediction. ``torch-modulo design`` prints it.
 
-The predictions are models of the default decoders (the modulo one decoding each pixel alone: what a scene gets
-whatever its texture; with spatial evidence a smooth scene needs fewer frames, docs/multishot.md);
-:func:`simulate_median` checks one against the library's own sensors
-and decoders on the same ramp of radiances (protocol D of the benchmarks), and :func:`plot` draws both sensors'
-predicted relative error against radiance (matplotlib, the optional extra ``torch_modulo[plot]``).
+The predictions are models of the default decoders: the modulo one with spatial evidence, on a smooth scene (the
+ramp), where neighbours agree; ``spatial=False`` plans and predicts for each pixel decoded alone, which needs about
+twice the frames and is what a scene of fine texture throughout needs (docs/multishot.md). :func:`simulate_median`
+checks a prediction against the library's own sensors and decoders on the same ramp of radiances (protocol D of the
+benchmarks; as an image whose columns hold the radiances, so that neighbours exist), and :func:`plot` draws both
+sensors' predicted relative error against radiance (matplotlib, the optional extra ``torch_modulo[plot]``).
 
 "Stops" has one meaning here, as in :func:`~torch_modulo.plan_exposures`: the scene spans ``E_min`` to
 ``2**stops E_min``, where ``E_min`` reads one count at the longest exposure (1.0 here).
@@ -39,6 +40,7 @@ from torch_modulo.noise import PRESETS, NoiseModel, as_noise_model
 from torch_modulo.sensors import SimulatedIntensitySensor, SimulatedModuloSensor
 
 __all__ = [
+    "RAMP_ROWS",
     "DesignAnswer",
     "agrees",
     "conventional_exposures",
@@ -55,6 +57,8 @@ _RELATIVE = 0.25
 _ABSOLUTE = 0.002
 #: The most frames a conventional plan is given (as :func:`~torch_modulo.multishot.prediction.plan_conventional`).
 _MOST_FRAMES = 256
+#: The rows of :func:`simulate_median`'s ramp for the decoder with spatial evidence (each column one radiance).
+RAMP_ROWS = 64
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,6 +91,7 @@ class DesignAnswer:
             "stops": self.stops,
             "exposures": list(self.modulo.exposures),
             "frames": self.modulo.frames,
+            "spatial": self.modulo.spatial,
             "modulo_median_error": self.modulo.median_error,
             "modulo_gross_share": self.modulo.gross_share,
             "conventional_exposures": list(self.conventional.exposures),
@@ -109,6 +114,7 @@ def design(
     frames: int | None = None,
     sigmas: float = 3.0,
     longest_frames: int = 1,
+    spatial: bool = True,
 ) -> DesignAnswer:
     """The modulo plan for ``stops`` stops (at most ``frames`` exposures, if given), its predicted error, and the
     conventional plan with the fewest frames whose predicted median error is at most the modulo plan's.
@@ -122,6 +128,8 @@ def design(
         sigmas: the modulo decoder's gate.
         longest_frames: how many frames of the modulo plan take its longest exposure (``plan_exposures``'s
             ``longest_frames``; the budget counts them).
+        spatial: plan and predict for the modulo decoder with spatial evidence (the default); False: for each pixel
+            decoded alone.
 
     Returns:
         A :class:`DesignAnswer`. Where no conventional plan of up to 256 frames is as good, its plan is the
@@ -139,9 +147,16 @@ def design(
     if model is None:
         raise ValueError("noise must be a NoiseModel or a preset name; got None")
     taus = plan_exposures(
-        stops, bits, noise=model, sigmas=sigmas, longest=1.0, frames=frames, longest_frames=longest_frames
+        stops,
+        bits,
+        noise=model,
+        sigmas=sigmas,
+        longest=1.0,
+        frames=frames,
+        longest_frames=longest_frames,
+        spatial=spatial,
     )
-    modulo = predict_modulo(taus, bits, model, sigmas, stops)
+    modulo = predict_modulo(taus, bits, model, sigmas, stops, spatial=spatial)
     try:
         conventional = plan_conventional(stops, bits, model, shortest=taus[0], target_median=modulo.median_error)
         reaches = True
@@ -156,8 +171,9 @@ def simulate_median(
 ) -> float:
     """The simulated median relative error of a prediction's plan on its own ramp: ``values`` log-uniform radiances
     over ``prediction.stops`` stops from ``1 / tau_max``, captured by the library's simulated sensor of
-    ``prediction.sensor``'s kind and decoded by its decoder (``unwrap_multi(..., noise=)`` or
-    ``merge_intensity(..., noise=)``), in float64.
+    ``prediction.sensor``'s kind and decoded by its decoder (``unwrap_multi(..., noise=, spatial=)`` as predicted,
+    or ``merge_intensity(..., noise=)``), in float64. For the decoder with spatial evidence the ramp is an image of
+    :data:`RAMP_ROWS` rows whose columns each hold one radiance (``values`` rounded up to whole columns).
 
     Example:
         >>> p = predict_modulo([1 / 64, 1 / 8, 1.0], 8, "q16", stops=12)
@@ -168,11 +184,14 @@ def simulate_median(
     if values < 1:
         raise ValueError(f"values must be >= 1; got {values}")
     taus = list(prediction.exposures)
-    radiance = torch.exp2(torch.linspace(0.0, prediction.stops, values, dtype=torch.float64)) / taus[-1]
-    image = radiance.reshape(1, 1, 1, values)
+    rows = RAMP_ROWS if prediction.spatial else 1
+    columns = -(-values // rows)
+    radiance = torch.exp2(torch.linspace(0.0, prediction.stops, columns, dtype=torch.float64)) / taus[-1]
+    image = radiance.reshape(1, 1, 1, columns).expand(1, 1, rows, columns)
+    radiance = image.reshape(-1)
     if prediction.sensor == "modulo":
         stack = SimulatedModuloSensor(bits, model, seed=seed)(image, taus)
-        estimate = unwrap_multi(stack.moduli, stack.exposures, bits, noise=model)
+        estimate = unwrap_multi(stack.moduli, stack.exposures, bits, noise=model, spatial=prediction.spatial)
     else:
         stack = SimulatedIntensitySensor(bits, model, seed=seed)(image, taus)
         estimate = merge_intensity(stack.frames, stack.exposures, bits, noise=model)

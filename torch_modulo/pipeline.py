@@ -65,6 +65,7 @@ from torch_modulo.radiance import NONFINITE, RADIANCE_EXTENSIONS, load_radiance
 from torch_modulo.sensors.manifest import TRUTH_FILE  # the ground truth simulate writes; unwrap scores against it
 
 if TYPE_CHECKING:
+    from torch_modulo.noise import NoiseModel
     from torch_modulo.sensors import FrameStack
 
 __all__ = [
@@ -129,6 +130,16 @@ def scene_seed(seed: int, name: str) -> int:
     return int.from_bytes(hashlib.sha256(f"{seed}:{name}".encode()).digest()[:8], "little") % (2**63)
 
 
+def _spatial_plan(options: Mapping[str, Any], noise: NoiseModel | None) -> tuple[bool, list[str]]:
+    """Whether :func:`simulate_job` plans for the decoder with spatial evidence (option ``spatial``, default True),
+    and a note where it was asked for and there is no noise to plan for."""
+    spatial = check_flag(options.get("spatial", True), "spatial")
+    if spatial and (noise is None or noise.is_noiseless):  # without noise every ratio up to 2^bits - 1 decodes
+        note = "spatial: no noise model, so the noise-free plan (spatial evidence is noise-aware decoding)"
+        return False, [note] if "spatial" in options else []
+    return spatial, []
+
+
 def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     """Job of ``torch-modulo simulate``: one HDR file -> one frame-stack folder (atomic).
 
@@ -137,9 +148,10 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     ``format``, ``truth`` and, optionally, ``nonfinite``, ``cfa``, ``linear``, ``force_exposures``, ``max_side``,
     ``crop``, ``spatial`` and ``longest_frames``. The scaling rules are in the module docstring.
 
-    ``spatial`` (with a noise model): plan for the decoder with spatial evidence (about half the frames; given
-    exposures are checked against its safe ratio instead), and record ``"spatial": true`` in the stack's metadata,
-    so that :func:`unwrap_job` decodes it that way. ``longest_frames`` (an int >= 1, with ``"auto"`` exposures):
+    ``spatial`` (with a noise model; default True): plan for the decoder with spatial evidence (about half the
+    frames of the per-pixel plan; given exposures are checked against its safe ratio instead), or with False for
+    each pixel decoded alone; a noisy stack records which in its metadata (``"spatial"``), so that
+    :func:`unwrap_job` decodes it that way. ``longest_frames`` (an int >= 1, with ``"auto"`` exposures):
     the plan's longest exposure taken that many times (under noise the repeats collect light).
 
     ``max_side`` (an int) shrinks the scene first by area averaging, by the smallest integer factor that brings its
@@ -163,11 +175,7 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     bits = int(options["bits"])
     nonfinite = options.get("nonfinite", "replace")
     noise = noise_model(options["noise"])
-    notes: list[str] = []
-    spatial = check_flag(options.get("spatial", False), "spatial")
-    if spatial and (noise is None or noise.is_noiseless):  # without noise every ratio up to 2^bits - 1 decodes
-        notes.append("spatial: no noise model, so the noise-free plan (spatial evidence is noise-aware decoding)")
-        spatial = False
+    spatial, notes = _spatial_plan(options, noise)
     if options["exposures"] != "auto" and (too_far := undecodable_ratio(options["exposures"], bits)):
         if not check_flag(options.get("force_exposures", False), "force_exposures"):
             raise ValueError(
@@ -198,9 +206,9 @@ def simulate_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
         scale = float(options["scale"]) if fixed else fit_scale(image, bits, taus, noise)
         facts["scaling"] = "fixed" if fixed else ("single shot (protocol A)" if len(taus) == 1 else "below rollover")
         notes += unsafe_ratio_warnings(taus, bits, noise, image, spatial=spatial)
-    # Planned for the decoder with spatial evidence: the stack records it, so unwrap decodes it so (one frame has
-    # nothing to decode).
-    recorded = {"spatial": True} if spatial and len(taus) > 1 else {}
+    # The noisy plan records the decoder it is for (with spatial evidence or each pixel alone), so unwrap decodes it
+    # so (one frame has nothing to decode).
+    recorded = {"spatial": spatial} if noise is not None and not noise.is_noiseless and len(taus) > 1 else {}
     # Round to float32 first: radiance.exr (float32) then holds exactly the radiance the frames were captured from.
     radiance = (image * scale).float().double()
     seed = scene_seed(int(options["seed"]), task.name)
@@ -300,10 +308,11 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
                 f"({noise_name(noise)}) was not used; --method robust decodes with it"
             )
             noise = None
-        choice = options.get("spatial")  # None: as the stack was planned
-        spatial = check_flag(stack.metadata.get("spatial", False) if choice is None else choice, "spatial")
+        choice = options.get("spatial")  # None: as the stack was planned, with spatial evidence where it says not
+        spatial = check_flag(stack.metadata.get("spatial", True) if choice is None else choice, "spatial")
         if spatial and noise is None:
-            notes.append("spatial evidence is noise-aware decoding, and no noise model is used: decoded noise-free")
+            if choice or stack.metadata.get("spatial"):  # asked for, or planned for, not the default alone
+                notes.append("spatial evidence is noise-aware decoding, and no noise model is used: decoded noise-free")
             spatial = False
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -430,9 +439,9 @@ def unwrap_job(task: Task, options: Mapping[str, Any]) -> dict[str, Any]:
     the default), ``confidence``, ``_solver_workers`` (processes of the single-shot solver) and, optionally,
     ``solver_options`` (keyword options of the method, JSON values), ``learned_version`` (recorded in the metadata;
     it keeps outputs of an earlier ``"learned"`` from counting as complete), ``cfa``, ``demosaic`` and ``spatial``
-    (multi shot with a noise model: decode with spatial evidence, ``unwrap_multi(..., spatial=True)``; None or
-    absent: where the stack's metadata records ``"spatial": true``, as ``simulate_job`` writes it for a spatial plan;
-    a mosaic's colour planes are then decoded apart).
+    (multi shot with a noise model: True decodes with spatial evidence, ``unwrap_multi``'s default, a mosaic's colour
+    planes apart; False each pixel alone; None or absent: as the stack's metadata records (``"spatial"``, as
+    ``simulate_job`` writes it for its plan), with spatial evidence where it records nothing).
 
     With ``single``, the input is a modulus image or a frame stack of one exposure (as ``simulate`` writes it).
     Where a stack holds its ground truth (:data:`TRUTH_FILE`), the result is scored against it: single shot by

@@ -195,17 +195,19 @@ class TestSpatialDecoding:
         radiance = _smooth_scene(14, size=24)
         taus = _plan(14, Q16, spatial=True)
         moduli = SimulatedModuloSensor(8, Q16, seed=5)(radiance, taus).moduli
-        layer = tm.MultiExposureUnwrap(bits=8, noise=Q16, spatial=True)
-        assert torch.equal(layer(moduli, taus), _decode(moduli, taus, Q16, spatial=True))
-        assert torch.equal(tm.MultiExposureUnwrap(bits=8, noise=Q16)(moduli, taus), _decode(moduli, taus, Q16, False))
-        assert "spatial=True" in repr(layer)
+        layer = tm.MultiExposureUnwrap(bits=8, noise=Q16, spatial=False)
+        assert torch.equal(layer(moduli, taus), _decode(moduli, taus, Q16, spatial=False))
+        assert torch.equal(tm.MultiExposureUnwrap(bits=8, noise=Q16)(moduli, taus), _decode(moduli, taus, Q16, True))
+        assert "spatial=False" in repr(layer)
 
-    def test_defaults_decode_and_plan_each_pixel_alone(self) -> None:
+    def test_defaults_decode_and_plan_with_spatial_evidence(self) -> None:
         radiance = _smooth_scene(14, size=24)
-        taus = _plan(14, Q16, spatial=False)
+        taus = _plan(14, Q16, spatial=True)
         assert taus == _plan_default(14, Q16)
+        assert len(taus) < len(_plan(14, Q16, spatial=False))  # larger ratios: fewer frames
         moduli = SimulatedModuloSensor(8, Q16, seed=5)(radiance, taus).moduli
-        assert torch.equal(tm.unwrap_multi(moduli, taus, 8, noise=Q16), _decode(moduli, taus, Q16, spatial=False))
+        assert torch.equal(tm.unwrap_multi(moduli, taus, 8, noise=Q16), _decode(moduli, taus, Q16, spatial=True))
+        assert not torch.equal(_decode(moduli, taus, Q16, spatial=True), _decode(moduli, taus, Q16, spatial=False))
 
     def test_spatial_plans_warn_only_without_neighbours(self) -> None:
         taus = _plan(18, PHOTON, spatial=True)
@@ -213,11 +215,11 @@ class TestSpatialDecoding:
         moduli = SimulatedModuloSensor(8, PHOTON, seed=6)(radiance, taus).moduli
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON, spatial=True)
+            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)  # the default decodes with spatial evidence
         with pytest.warns(UserWarning, match=r"is unsafe .* \(or decode with spatial=True, for which these ratios"):
-            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON)  # the default decodes each pixel alone
+            tm.unwrap_multi(moduli, taus, 8, noise=PHOTON, spatial=False)
         with pytest.warns(UserWarning, match="is unsafe"):  # a single row has no 2-D neighbourhood
-            tm.unwrap_multi(moduli[..., :1, :], taus, 8, noise=PHOTON, spatial=True)
+            tm.unwrap_multi(moduli[..., :1, :], taus, 8, noise=PHOTON)
 
     def test_bad_input(self) -> None:
         moduli = torch.zeros(2, 1, 4, 4)
@@ -283,8 +285,8 @@ class TestMosaics:
         for noise in (None, Q16):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                plain = tm.unwrap_multi(moduli, taus, 8, noise=noise)
-                assert torch.equal(tm.unwrap_multi(moduli, taus, 8, noise=noise, cfa="GRBG"), plain)
+                plain = tm.unwrap_multi(moduli, taus, 8, noise=noise, spatial=False)
+                assert torch.equal(tm.unwrap_multi(moduli, taus, 8, noise=noise, spatial=False, cfa="GRBG"), plain)
 
     def test_bad_patterns_and_shapes_are_named(self) -> None:
         moduli, _, taus = self._mosaic()

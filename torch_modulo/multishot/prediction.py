@@ -7,14 +7,17 @@ exposure. Per radiance ``E`` (``c = E + D`` with the dark counts ``D`` per unit 
 reads a count of variance ``V(t c)`` (:meth:`~torch_modulo.noise.NoiseModel.count_variance`): ``1/12`` of it is the
 counter's floor, a uniform error of one count, the rest the Gaussian charge noise ``V_g``.
 
-**Modulo sensor** (:func:`~torch_modulo.unwrap_multi` with ``noise=``, each pixel decoded alone: the default; the
-decoder with spatial evidence does better on smooth scenes, by how much depends on the scene): the decoder's walk under
-expected values, as the planner makes it. Frame ``i`` is decoded while
-``s_i^2 = t_i^2 / W_{i-1} + V(t_i c) <= (2^N / (2 z))^2``, ``W`` the running weight ``sum t_j^2 / V(t_j c)`` over the
-decoded frames (the estimate's variance is ``1 / W``); its rollover count is wrong with probability
-``p_i = erfc(2^N / (2 sqrt(2) s_i))`` (the Gaussian tail past half a period), which shifts the estimate by about
-``(w_i / W_i) 2^N / t_i``. The shortest frame rolls over itself with the probability that its charge reaches ``2^N``,
-which leaves the estimate a period low.
+**Modulo sensor** (:func:`~torch_modulo.unwrap_multi` with ``noise=``): the decoder's walk under expected values,
+as the planner makes it. Frame ``i`` is decoded while ``s_i^2 = t_i^2 / W_{i-1} + V(t_i c) <= (2^N / (2 z))^2``,
+``W`` the running weight ``sum t_j^2 / V(t_j c)`` over the decoded frames (the estimate's variance is ``1 / W``);
+its rollover count is wrong with probability ``p_i = erfc(2^N / (2 sqrt(2) s_i))`` (the Gaussian tail past half a
+period), which shifts the estimate by about ``(w_i / W_i) 2^N / t_i``. That is each pixel decoded alone
+(``spatial=False``). With spatial evidence (``spatial=True``, the decoder's default) the prediction's part
+``t_i^2 / W_{i-1}`` is taken as shrunk by :data:`~torch_modulo.multishot.spatial.PLANNED_SHRINK`, as the planner
+takes it, and the two parts are gated as the decoder gates them (:func:`~torch_modulo.multishot.spatial.gates`): a
+model of a smooth scene, where the neighbours agree (on a textured one a pixel decodes as alone). The shortest
+frame rolls over itself with the probability that its charge reaches ``2^N``, which leaves the estimate a period
+low.
 
 **Conventional sensor** (:func:`~torch_modulo.merge_intensity` with ``noise=``): the inverse-variance merge of the
 unsaturated frames. Frame ``i`` is unsaturated with probability ``P(t_i c + g < 2^N - 1)`` (``g`` the Gaussian
@@ -42,8 +45,9 @@ from typing import Any
 
 import torch
 
-from torch_modulo._checks import check_bits, check_int, check_real
+from torch_modulo._checks import check_bits, check_flag, check_int, check_real
 from torch_modulo.multishot.planning import brightest_unwrapped, plan_exposures
+from torch_modulo.multishot.spatial import PLANNED_SHRINK, gates
 from torch_modulo.noise import NoiseModel, as_noise_model
 
 __all__ = ["Prediction", "plan_conventional", "predict_conventional", "predict_modulo"]
@@ -70,6 +74,7 @@ class Prediction:
         relative_error: (n,) float64, each radiance's predicted rms relative error ``sqrt(Var(E^)) / E``.
         median_error: the median ``|relative error|`` over the whole ramp.
         gross_share: the share of the ramp's values more than 50% off (in [0, 1]).
+        spatial: whether the modulo decoder predicted uses spatial evidence (False for a conventional sensor).
     """
 
     sensor: str
@@ -78,6 +83,7 @@ class Prediction:
     relative_error: torch.Tensor
     median_error: float
     gross_share: float
+    spatial: bool = False
 
     @property
     def frames(self) -> int:
@@ -98,6 +104,7 @@ class Prediction:
             "stops": self.stops,
             "median_error": self.median_error,
             "gross_share": self.gross_share,
+            "spatial": self.spatial,
         }
         if grid:
             out["radiance"] = self.radiance.tolist()
@@ -192,6 +199,7 @@ def predict_modulo(
     noise: NoiseModel | str,
     sigmas: float = 3.0,
     stops: float | None = None,
+    spatial: bool = True,
 ) -> Prediction:
     """The predicted error of the noise-aware multi-shot decoder on a log-uniform ramp (module docstring).
 
@@ -202,6 +210,9 @@ def predict_modulo(
         sigmas: the decoding gate (as :func:`~torch_modulo.unwrap_multi`'s).
         stops: the ramp's dynamic range from ``E_min = 1 / tau_max``; default: up to the brightest radiance the
             shortest exposure holds ``sigmas`` deviations below the rollover (as :func:`plan_exposures` plans it).
+        spatial: predict the decoder with spatial evidence (``unwrap_multi``'s default) on a smooth ramp; False:
+            each pixel decoded alone (``unwrap_multi(..., spatial=False)``, and what the spatial decoder gets where
+            no neighbour agrees, on a fine texture).
 
     Returns:
         A :class:`Prediction`.
@@ -220,6 +231,7 @@ def predict_modulo(
     sigmas = check_real(sigmas, "sigmas", positive=True)
     radiance = _ramp(taus, stops, brightest_unwrapped(bits, model, sigmas, exposure=taus[0]) / taus[0])
     period, gate = 2.0**bits, (2.0**bits / (2.0 * sigmas)) ** 2
+    whole, shrink = (gates(bits, sigmas)[1], PLANNED_SHRINK) if check_flag(spatial, "spatial") else (gate, 1.0)
     c = radiance + model.dark_counts
     variance, charge = _parts(model, taus[0], c)
     weights = [taus[0] ** 2 / variance]
@@ -229,8 +241,9 @@ def predict_modulo(
     active = torch.ones_like(c, dtype=torch.bool)
     for t in taus[1:]:
         variance, _ = _parts(model, t, c)
-        spread = t * t / total + variance
-        active = active & (spread <= gate)
+        prediction = t * t / (total * shrink)
+        spread = prediction + variance
+        active = active & (spread <= whole) & (prediction <= gate)
         weight = torch.where(active, t * t / variance, 0.0)
         total = total + weight
         wrong.append(torch.where(active, torch.erfc(period / (2.0 * _SQRT2 * spread.sqrt())), 0.0))
@@ -251,7 +264,7 @@ def predict_modulo(
         weight, bias, gaussian.unsqueeze(1).expand(-1, size), (width / radiance).unsqueeze(1).expand(-1, size)
     )
     median, gross = _pooled(mix)
-    return Prediction("modulo", tuple(taus), radiance, sd / radiance, median, gross)
+    return Prediction("modulo", tuple(taus), radiance, sd / radiance, median, gross, shrink > 1.0)
 
 
 def predict_conventional(

@@ -66,7 +66,7 @@ def _warn_unsafe(
         message += " (or decode with spatial=True, for which these ratios are safe)"  # a plan for the spatial decoder
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)
-    plan = f"plan_exposures({stops}, bits={bits}, noise=noise{', spatial=True' if spatial else ''})"
+    plan = f"plan_exposures({stops}, bits={bits}, noise=noise{'' if spatial else ', spatial=False'})"
     warnings.warn(f"{message}, e.g. exposures = {plan}", stacklevel=3)
 
 
@@ -200,7 +200,7 @@ def unwrap_multi(
     *,
     noise: NoiseModel | str | None = None,
     sigmas: float = 3.0,
-    spatial: bool = False,
+    spatial: bool = True,
     cfa: str | None = None,
     return_counts: bool = False,
     return_variance: bool = False,
@@ -239,9 +239,12 @@ def unwrap_multi(
             ``2**bits / (2 sigmas)`` (with ``spatial``: the prediction's part; the whole within
             ``2**bits / (2 z)``, ``z = 2 sigmas / 3``).
         spatial: with ``noise``: predict each pixel's next count from the mean of its agreeing 3 x 3 neighbours in
-            its image plane (:mod:`torch_modulo.multishot.spatial`), so that the larger ratios of a spatial plan
-            (``plan_exposures(..., noise=..., spatial=True)``) decode; False (the default) decodes every pixel
-            alone. Without ``noise`` it changes nothing. Give a mosaic's ``cfa``: its neighbours are other colours.
+            its image plane (:mod:`torch_modulo.multishot.spatial`; the default), so that the larger ratios of a
+            spatial plan (``plan_exposures(..., noise=...)``, whose default it is too) decode; False decodes every
+            pixel alone (for the plans of ``plan_exposures(..., spatial=False)``; its reported variance is better
+            calibrated: with spatial evidence a few more values carry a wrong rollover count in a bright frame,
+            which the variance leaves out). Without ``noise`` it changes nothing. Give a mosaic's ``cfa``: its
+            neighbours are other colours.
         cfa: the colour filter array of mosaicked frames (``"RGGB"``, ``"BGGR"``, ``"GRBG"`` or ``"GBRG"``; moduli
             (B, M, 1, H, W) with an even height and width), or None. With ``spatial`` and ``noise`` the four colour
             planes are decoded apart, each as a half-resolution image, so that a photosite's neighbours are of its
@@ -410,7 +413,7 @@ class MultiExposureUnwrap(nn.Module):
         return_counts: return counts at the longest exposure instead of radiance.
         noise: the sensor's noise model (or a preset name), or None.
         sigmas: the decoding gate with ``noise`` (see :func:`unwrap_multi`).
-        spatial: with ``noise``, use the neighbours' evidence (see :func:`unwrap_multi`); a
+        spatial: with ``noise``, use the neighbours' evidence (the default; see :func:`unwrap_multi`); a
             :class:`~torch_modulo.sensors.FrameStack` of mosaics passes its ``cfa``, so that its colour planes are
             decoded apart.
 
@@ -436,7 +439,7 @@ class MultiExposureUnwrap(nn.Module):
         *,
         noise: NoiseModel | str | None = None,
         sigmas: float = 3.0,
-        spatial: bool = False,
+        spatial: bool = True,
     ) -> None:
         super().__init__()
         self.method = check_choice(method, "method", METHODS)
