@@ -133,6 +133,8 @@ def test_spatial_options(capsys: pytest.CaptureFixture[str]) -> None:
     args = parser.parse_args(["simulate", "i", "o", "--noise", "q16", "--spatial"])
     assert JOB_OPTIONS["simulate"](args, commands["simulate"])["spatial"] is True
     assert "spatial" not in JOB_OPTIONS["simulate"](parser.parse_args(["simulate", "i", "o"]), commands["simulate"])
+    alone = parser.parse_args(["simulate", "i", "o", "--noise", "none", "--no-spatial"])  # no noise: nothing to refuse
+    assert JOB_OPTIONS["simulate"](alone, commands["simulate"])["spatial"] is False
     for flag, value in (("--spatial", True), ("--no-spatial", False)):
         args = parser.parse_args(["unwrap", "i", "o", flag])
         assert JOB_OPTIONS["unwrap"](args, commands["unwrap"])["spatial"] is value

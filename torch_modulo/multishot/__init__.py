@@ -5,7 +5,8 @@ Rooms:
 
 - :mod:`~torch_modulo.multishot.counting`: Eqs. 6-7 as printed and the robust noise-free rule.
 - :mod:`~torch_modulo.multishot.noisy`: the noise-aware decoder (each frame used only while its count is determined).
-- :mod:`~torch_modulo.multishot.spatial`: the neighbours' evidence of the spatial decoder (``spatial=True``).
+- :mod:`~torch_modulo.multishot.spatial`: the neighbours' evidence of the spatial decoder (``spatial=True``, the
+  default under noise).
 - :mod:`~torch_modulo.multishot.planning`: :func:`plan_exposures`, noise-free and noise-aware (within a frame budget,
   for either decoder).
 - :mod:`~torch_modulo.multishot.prediction`: the predicted error of a plan, for modulo and conventional sensors, and
