@@ -78,6 +78,7 @@ def test_job_options_keep_defaults_out_of_the_fingerprint(capsys: pytest.Capture
         "solver": None,
         "confidence": False,
         "_solver_workers": None,
+        "spatial": None,  # as each stack records: with spatial evidence where it records nothing, since 2026-12-07
     }
 
 
@@ -132,7 +133,16 @@ def test_spatial_options(capsys: pytest.CaptureFixture[str]) -> None:
     commands = parser._subparsers._group_actions[0].choices  # type: ignore[union-attr]
     args = parser.parse_args(["simulate", "i", "o", "--noise", "q16", "--spatial"])
     assert JOB_OPTIONS["simulate"](args, commands["simulate"])["spatial"] is True
-    assert "spatial" not in JOB_OPTIONS["simulate"](parser.parse_args(["simulate", "i", "o"]), commands["simulate"])
+    # noisy multi-shot runs always say which plan: stacks planned per pixel before it was the default are redone
+    assert JOB_OPTIONS["simulate"](parser.parse_args(["simulate", "i", "o"]), commands["simulate"])["spatial"] is True
+    for quiet in (["--noise", "none"], ["--exposures", "1"]):  # no noise, or single shot: nothing changed
+        assert "spatial" not in JOB_OPTIONS["simulate"](
+            parser.parse_args(["simulate", "i", "o", *quiet]), commands["simulate"]
+        )
+    assert JOB_OPTIONS["unwrap"](parser.parse_args(["unwrap", "i", "o"]), commands["unwrap"])["spatial"] is None
+    assert "spatial" not in JOB_OPTIONS["unwrap"](
+        parser.parse_args(["unwrap", "i", "o", "--single"]), commands["unwrap"]
+    )
     alone = parser.parse_args(["simulate", "i", "o", "--noise", "none", "--no-spatial"])  # no noise: nothing to refuse
     assert JOB_OPTIONS["simulate"](alone, commands["simulate"])["spatial"] is False
     for flag, value in (("--spatial", True), ("--no-spatial", False)):

@@ -264,8 +264,11 @@ def simulate_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> 
             sub.error("--spatial plans for the noise-aware decoder: it needs a noise model; got --noise none")
         if args.exposures != "auto" and len(args.exposures) < 2:
             sub.error(f"--spatial plans multi-shot stacks; got one exposure, --exposures {args.exposures[0]:g}")
-    if args.spatial is not None:  # only when given: the default is the pipeline's (spatial evidence)
-        options["spatial"] = args.spatial
+    multi = args.exposures == "auto" or len(args.exposures) > 1
+    if args.spatial is not None or (args.noise != "none" and multi):
+        # Noisy plans are for the decoder with spatial evidence by default since it became the default: stacks an
+        # earlier version planned for each pixel (no option) are not complete.
+        options["spatial"] = True if args.spatial is None else args.spatial
     if args.longest_frames != 1:  # only when given: outputs completed without it stay complete
         if args.exposures != "auto":
             sub.error(
@@ -358,7 +361,9 @@ def unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> di
         options["cfa"] = args.cfa
     if not args.demosaic:
         options["demosaic"] = False
-    if args.spatial is not None:
+    if not args.single:
+        # None: as each stack records, with spatial evidence where it records nothing, since that became the
+        # default: radiance an earlier version decoded per pixel from such a stack is not complete.
         options["spatial"] = args.spatial
     return options
 

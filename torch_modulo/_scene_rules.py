@@ -237,10 +237,10 @@ def undecodable_ratio(taus: Sequence[float], bits: int) -> str | None:
 
 
 def unsafe_ratio_warnings(
-    taus: Sequence[float], bits: int, noise: NoiseModel | None, image: torch.Tensor, spatial: bool = False
+    taus: Sequence[float], bits: int, noise: NoiseModel | None, image: torch.Tensor, spatial: bool = True
 ) -> list[str]:
     """A warning when given exposures have a neighbouring ratio the noise model says is unsafe for the decoder
-    (with ``spatial``, the one with spatial evidence), naming a plan."""
+    (with ``spatial``, the default, the one with spatial evidence; else each pixel alone), naming a plan."""
     if noise is None or noise.is_noiseless or len(taus) < 2:
         return []
     from torch_modulo.multishot import unsafe_ratio_message
@@ -257,7 +257,7 @@ def unsafe_ratio_warnings(
         plan = f"{len(auto)} exposures"
     except ValueError as error:
         plan = f"none possible: {error}"
-    flag = ", spatial=True" if spatial else ""
+    flag = "" if spatial else ", spatial=False"
     return [
         f"{message}, e.g. --exposures auto (for this scene plan_exposures({stops}, bits={bits}, noise=noise, "
         f"longest=1{flag}): {plan})"

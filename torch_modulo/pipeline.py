@@ -12,8 +12,9 @@ How ``simulate`` scales a scene and chooses its exposures (radiance in counts pe
   the benchmarks, the 0.1th percentile of the scene's positive values reads 16 counts at the longest exposure
   (1), the scene needs ``ceil(log2(max / that percentile) + 4)`` stops, and the exposures are
   :func:`~torch_modulo.plan_exposures` for those stops, the bit depth and the noise model with ``longest=1`` (so
-  that dark current is planned at the exposures captured; noise-free: the noise-free plan); with ``spatial``, the
-  plan for the decoder with spatial evidence, which the stack then records for ``unwrap``.
+  that dark current is planned at the exposures captured; noise-free: the noise-free plan): by default the plan for
+  the decoder with spatial evidence (``spatial=False``: for each pixel alone), which a noisy stack then records for
+  ``unwrap``.
 - **Given exposures, several** (:func:`fit_scale`): the brightest value reads ``2**bits - 1`` at the shortest
   exposure; under noise, the largest count whose noisy reading, with that exposure's dark counts, stays three
   standard deviations below the rollover. That frame does not roll over, as multi-shot unwrapping needs.
@@ -308,7 +309,7 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
                 f"({noise_name(noise)}) was not used; --method robust decodes with it"
             )
             noise = None
-        choice = options.get("spatial")  # None: as the stack was planned, with spatial evidence where it says not
+        choice = options.get("spatial")  # None: as the stack was planned (spatial where it records nothing)
         spatial = check_flag(stack.metadata.get("spatial", True) if choice is None else choice, "spatial")
         if spatial and noise is None:
             if choice or stack.metadata.get("spatial"):  # asked for, or planned for, not the default alone
@@ -320,7 +321,7 @@ def _unwrap_stack(task: Task, options: Mapping[str, Any]) -> tuple[torch.Tensor,
                 stack.moduli, stack.exposures, stack.bits, rule, noise=noise, spatial=spatial, cfa=cfa
             )[0]
         notes += [str(w.message) for w in caught]
-    recorded = {"spatial": True} if spatial else {}
+    recorded = {"spatial": spatial} if noise is not None and stack.kind != "intensity" else {}
     radiance, colour = restored_colour(radiance, cfa, demosaic=options.get("demosaic", True))
     metadata = {
         "source": task.name,

@@ -278,80 +278,80 @@ def plan_exposures(
     longest_frames: int = 1,
 ) -> list[float]:
     """The fewest exposures whose modulo captures decode a scene of ``stops`` stops reliably, or the best plan within
-        a budget of ``frames`` exposures.
+    a budget of ``frames`` exposures.
 
-        A scene spans ``E_max / E_min = 2**stops``, where ``E_min`` reads one count at the longest exposure and
-        ``E_max`` must not roll over at the shortest exposure ``base``. Without noise, neighbouring ratios of up to
-        ``max_ratio`` are spread evenly. With a ``noise`` model the shortest exposure keeps ``E_max`` (plus the dark
-        counts of that exposure) ``sigmas`` deviations below the rollover, and each ratio is as large as the pixels
-        that still need the next frame allow (see the module docstring), so that :func:`~torch_modulo.unwrap_multi`
-        with the same ``noise`` decodes every radiance to within ``tolerance`` of what its longest frame alone would
-        give, or to its physical limit.
+    A scene spans ``E_max / E_min = 2**stops``, where ``E_min`` reads one count at the longest exposure and
+    ``E_max`` must not roll over at the shortest exposure ``base``. Without noise, neighbouring ratios of up to
+    ``max_ratio`` are spread evenly. With a ``noise`` model the shortest exposure keeps ``E_max`` (plus the dark
+    counts of that exposure) ``sigmas`` deviations below the rollover, and each ratio is as large as the pixels
+    that still need the next frame allow (see the module docstring), so that :func:`~torch_modulo.unwrap_multi`
+    with the same ``noise`` decodes every radiance to within ``tolerance`` of what its longest frame alone would
+    give, or to its physical limit.
 
-        Plan in the unit the frames are captured in. Dark current is in electrons per unit exposure, so under dark
-        current a plan depends on its absolute exposures: a plan rescaled afterwards (``[t / plan[-1] for t in plan]``)
-        is a plan for other dark counts, and may not decode. Give ``longest`` to fix the longest exposure instead of
-        the shortest: the plan is then made with the base that ends it at ``longest`` (where its last step is raised to
+    Plan in the unit the frames are captured in. Dark current is in electrons per unit exposure, so under dark
+    current a plan depends on its absolute exposures: a plan rescaled afterwards (``[t / plan[-1] for t in plan]``)
+    is a plan for other dark counts, and may not decode. Give ``longest`` to fix the longest exposure instead of
+    the shortest: the plan is then made with the base that ends it at ``longest`` (where its last step is raised to
     ``min_ratio``, it ends a little past ``longest`` and is scaled back to it). Without dark current every plan
-        is the ``base=1`` plan scaled, and ``longest`` gives exactly that plan times ``longest / plan[-1]``.
+    is the ``base=1`` plan scaled, and ``longest`` gives exactly that plan times ``longest / plan[-1]``.
 
-        With ``frames=K`` the plan holds at most ``K`` exposures (see the module docstring for which): under noise the
-        one of the smallest tolerance down to 1 that fits, else of the smallest ``min_ratio`` that fits (up to the ratio
-        a pixel that read no signal still decodes), else of the smallest larger tolerance; noise-free the fewest-frame
-        plan.
+    With ``frames=K`` the plan holds at most ``K`` exposures (see the module docstring for which): under noise the
+    one of the smallest tolerance down to 1 that fits, else of the smallest ``min_ratio`` that fits (up to the ratio
+    a pixel that read no signal still decodes), else of the smallest larger tolerance; noise-free the fewest-frame
+    plan.
 
-        With ``longest_frames=L`` the longest exposure is taken ``L`` times (the budget ``frames`` counts them): the
-        repeats collect light where every pixel that decodes the longest frame reads the most. Under noise a repeat can
-        be worth more than the smaller ratios it replaces (docs/multishot.md, "Repeating the longest exposure").
+    With ``longest_frames=L`` the longest exposure is taken ``L`` times (the budget ``frames`` counts them): the
+    repeats collect light where every pixel that decodes the longest frame reads the most. Under noise a repeat can
+    be worth more than the smaller ratios it replaces (docs/multishot.md, "Repeating the longest exposure").
 
-        Args:
-            stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
-            bits: the sensor's bit depth.
-            base: the shortest exposure; default 1 (unless ``longest`` is given).
-            longest: the longest exposure, instead of ``base``.
-            max_ratio: the largest neighbouring ratio; default ``2**bits - 1`` (2 for a 1-bit counter).
-            noise: the sensor's :class:`~torch_modulo.noise.NoiseModel` (or a preset name), or None for a noise-free
-                sensor.
-            sigmas: the decoding gate in standard deviations (the same as :func:`~torch_modulo.unwrap_multi`'s).
-            tolerance: with noise, how far above its oracle standard deviation a pixel may end (>= 1).
-            min_ratio: with noise, the smallest ratio worth a frame (> 1): no neighbouring ratio of the plan is smaller
-                (the last frame may then lie past the exposure where ``E_min`` reads one count).
-            frames: a budget of exposures (>= 1), or None for the fewest that meet ``tolerance``.
-            spatial: with noise, plan for the decoder with spatial evidence (``unwrap_multi``'s default): its
-                predictions average agreeing neighbours, so the plan takes larger ratios (at least about 3.1 with the
-                default ``min_ratio``) and about half the frames. False: the plan for each pixel decoded alone
-                (``unwrap_multi(..., spatial=False)``), which needs more frames but no neighbours: for images
-                narrower than 3 pixels, or scenes of fine texture throughout (docs/multishot.md).
-            longest_frames: how many frames take the longest exposure (>= 1). Only noise-aware decoding gains from the
-                repeats: the noise-free decoders read the longest frame alone.
+    Args:
+        stops: the scene's dynamic range, ``log2(E_max / E_min)``, >= 0.
+        bits: the sensor's bit depth.
+        base: the shortest exposure; default 1 (unless ``longest`` is given).
+        longest: the longest exposure, instead of ``base``.
+        max_ratio: the largest neighbouring ratio; default ``2**bits - 1`` (2 for a 1-bit counter).
+        noise: the sensor's :class:`~torch_modulo.noise.NoiseModel` (or a preset name), or None for a noise-free
+            sensor.
+        sigmas: the decoding gate in standard deviations (the same as :func:`~torch_modulo.unwrap_multi`'s).
+        tolerance: with noise, how far above its oracle standard deviation a pixel may end (>= 1).
+        min_ratio: with noise, the smallest ratio worth a frame (> 1): no neighbouring ratio of the plan is smaller
+            (the last frame may then lie past the exposure where ``E_min`` reads one count).
+        frames: a budget of exposures (>= 1), or None for the fewest that meet ``tolerance``.
+        spatial: with noise, plan for the decoder with spatial evidence (``unwrap_multi``'s default): its
+            predictions average agreeing neighbours, so the plan takes larger ratios (at least about 3.1 with the
+            default ``min_ratio``) and about half the frames. False: the plan for each pixel decoded alone
+            (``unwrap_multi(..., spatial=False)``), which needs more frames but no neighbours: for images
+            narrower than 3 pixels, or scenes of fine texture throughout (docs/multishot.md).
+        longest_frames: how many frames take the longest exposure (>= 1). Only noise-aware decoding gains from the
+            repeats: the noise-free decoders read the longest frame alone.
 
-        Returns:
-            Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
+    Returns:
+        Exposures in ascending order, starting at ``base`` (or ending at ``longest``).
 
-        Raises:
-            TypeError: an argument of the wrong type.
-            ValueError: a value out of range, both ``base`` and ``longest``, a noise model that no exposure plan can
-                decode (also: dark counts at ``base`` that reach the rollover), a plan of more than 256 exposures,
-                exposures beyond float64's range, or ``frames`` fewer than even the largest ratios need (the message
-                says how many they need).
+    Raises:
+        TypeError: an argument of the wrong type.
+        ValueError: a value out of range, both ``base`` and ``longest``, a noise model that no exposure plan can
+            decode (also: dark counts at ``base`` that reach the rollover), a plan of more than 256 exposures,
+            exposures beyond float64's range, or ``frames`` fewer than even the largest ratios need (the message
+            says how many they need).
 
-        Example:
-            >>> plan_exposures(24, bits=8, max_ratio=256)     # the paper: three 8-bit captures cover 24 stops
-            [1.0, 256.0, 65536.0]
-            >>> len(plan_exposures(24, bits=8))               # with ratios <= 255 it takes four
-            4
-            >>> plan = plan_exposures(16, bits=8, noise="q16")  # 16 e- per count, 16 e- read noise
-            >>> len(plan) > 3, max(b / a for a, b in zip(plan, plan[1:])) < 32
-            (True, True)
-            >>> len(plan_exposures(16, bits=8, noise="q16", spatial=False)) > len(plan)  # each pixel alone: more frames
-            True
-            >>> dark = NoiseModel(dark_current=5.0)           # 5 e- per unit exposure: plan where the frames are taken
-            >>> taus = plan_exposures(16, bits=8, noise=dark, longest=1.0, spatial=False)
-            >>> same = plan_exposures(16, bits=8, noise=dark, base=taus[0], spatial=False)  # made at its own shortest
-            >>> taus[-1], len(same) == len(taus) and all(abs(a / b - 1) < 1e-9 for a, b in zip(taus, same))
-            (1.0, True)
-            >>> len(plan_exposures(16, bits=8, noise="q16", frames=4))  # the best plan of at most four exposures
-            4
+    Example:
+        >>> plan_exposures(24, bits=8, max_ratio=256)     # the paper: three 8-bit captures cover 24 stops
+        [1.0, 256.0, 65536.0]
+        >>> len(plan_exposures(24, bits=8))               # with ratios <= 255 it takes four
+        4
+        >>> plan = plan_exposures(16, bits=8, noise="q16")  # 16 e- per count, 16 e- read noise
+        >>> len(plan) > 3, max(b / a for a, b in zip(plan, plan[1:])) < 32
+        (True, True)
+        >>> len(plan_exposures(16, bits=8, noise="q16", spatial=False)) > len(plan)  # each pixel alone: more frames
+        True
+        >>> dark = NoiseModel(dark_current=5.0)           # 5 e- per unit exposure: plan where the frames are taken
+        >>> taus = plan_exposures(16, bits=8, noise=dark, longest=1.0, spatial=False)
+        >>> same = plan_exposures(16, bits=8, noise=dark, base=taus[0], spatial=False)  # made at its own shortest
+        >>> taus[-1], len(same) == len(taus) and all(abs(a / b - 1) < 1e-9 for a, b in zip(taus, same))
+        (1.0, True)
+        >>> len(plan_exposures(16, bits=8, noise="q16", frames=4))  # the best plan of at most four exposures
+        4
     """
     stops = check_real(stops, "stops", 0.0)
     spatial = check_flag(spatial, "spatial")
@@ -553,19 +553,20 @@ def safe_ratio(bits: int, noise: NoiseModel, sigmas: float = 3.0) -> tuple[float
 
 
 def unsafe_ratio_message(
-    worst: float, bits: int, noise: NoiseModel, sigmas: float = 3.0, spatial: bool = False
+    worst: float, bits: int, noise: NoiseModel, sigmas: float = 3.0, spatial: bool = True
 ) -> str | None:
-    """Why a largest neighbouring ratio ``worst`` is unsafe under ``noise`` (see :func:`safe_ratio`; with
-    ``spatial``, for the decoder with spatial evidence: :func:`spatial_safe_ratio`), or None if safe.
+    """Why a largest neighbouring ratio ``worst`` is unsafe under ``noise`` for the decoder with spatial evidence
+    (the default: :func:`spatial_safe_ratio`), or with ``spatial=False`` for each pixel decoded alone (see
+    :func:`safe_ratio`), or None if safe.
 
     Callers add what to use instead.
 
     Example:
-        >>> unsafe_ratio_message(4.0, 8, NoiseModel()) is None
+        >>> unsafe_ratio_message(4.0, 8, NoiseModel(), spatial=False) is None
         True
-        >>> unsafe_ratio_message(256.0, 8, NoiseModel()).startswith("exposure ratio 256 is unsafe")
+        >>> unsafe_ratio_message(256.0, 8, NoiseModel(), spatial=False).startswith("exposure ratio 256 is unsafe")
         True
-        >>> unsafe_ratio_message(12.0, 8, NoiseModel(), spatial=True) is None
+        >>> unsafe_ratio_message(12.0, 8, NoiseModel()) is None  # with spatial evidence
         True
     """
     if spatial:

@@ -52,17 +52,27 @@ def _warn_inexact_counts(out: torch.Tensor, tau: torch.Tensor, counts: bool) -> 
 
 
 def _warn_unsafe(
-    tau: torch.Tensor, ratios: torch.Tensor, bits: int, noise: NoiseModel, sigmas: float, spatial: bool
+    tau: torch.Tensor,
+    ratios: torch.Tensor,
+    bits: int,
+    noise: NoiseModel,
+    sigmas: float,
+    spatial: bool,
+    narrow: bool = False,
 ) -> None:
     """Warn when a neighbouring ratio leaves pixels that risk gross errors undecodable in the next frame (with
-    ``spatial``, even with their neighbours' evidence)."""
+    ``spatial``, even with their neighbours' evidence; images ``narrow``er than 3 pixels have no 2-D neighbourhood,
+    and are held to the limit for each pixel alone)."""
     if not ratios.numel():
         return
     worst = float(ratios.max())
+    spatial = spatial and not narrow
     message = unsafe_ratio_message(worst, bits, noise, sigmas, spatial=spatial)
     if message is None:
         return
-    if not spatial and unsafe_ratio_message(worst, bits, noise, sigmas, spatial=True) is None:
+    if narrow:
+        message += " (an image narrower than 3 pixels has no 2-D neighbourhood: each pixel decodes alone)"
+    elif not spatial and unsafe_ratio_message(worst, bits, noise, sigmas, spatial=True) is None:
         message += " (or decode with spatial=True, for which these ratios are safe)"  # a plan for the spatial decoder
     span = float((tau[:, -1] / tau[:, 0]).max())
     stops = math.ceil(math.log2(span) + bits)
@@ -332,7 +342,7 @@ def unwrap_multi(
     if checking:
         _check_dark_counts(tau, bits, noise, sigmas)
         # The spatial plan's ratios count on a 2-D neighbourhood: narrower images are held to the per-pixel limit.
-        _warn_unsafe(tau, ratios, bits, noise, sigmas, spatial and min(pixel_shape[-2:]) >= 3)
+        _warn_unsafe(tau, ratios, bits, noise, sigmas, spatial, narrow=min(pixel_shape[-2:]) < 3)
         check_modulus(frames, bits, "moduli")
     shape = (pixel_shape[-2], pixel_shape[-1]) if spatial and pixel_shape[-2] * pixel_shape[-1] > 1 else None
     radiance, variance, _ = decode_noisy(frames, tau, bits, noise, sigmas, return_counts, shape)
