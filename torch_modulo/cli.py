@@ -219,8 +219,8 @@ _SIMULATE_DESCRIPTION = (
 _SIMULATE_EXAMPLES = (
     "examples:\n  torch-modulo simulate hdr_scenes/ stacks/\n"
     "  torch-modulo simulate hdr_scenes/ stacks/ --noise q16 --seed 1\n"
-    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --no-spatial       # each pixel decoded alone: more frames\n"
-    "  torch-modulo simulate hdr_scenes/ few/ --noise q16 --longest-frames 2 # the longest exposure twice\n"
+    "  torch-modulo simulate hdr_scenes/ many/ --noise q16 --no-spatial      # each pixel decoded alone: more frames\n"
+    "  torch-modulo simulate hdr_scenes/ twice/ --noise q16 --longest-frames 2   # the longest exposure twice\n"
     "  torch-modulo simulate hdr_scenes/ single/ --exposures 1 --noise none   # one wrapped frame per scene\n"
     "  torch-modulo simulate hdr_scenes/ colour/ --cfa RGGB                   # a colour modulo camera\n"
     "  torch-modulo simulate big_scenes/ small/ --max-side 512 --crop 256     # area-averaged, centre crop\n"
@@ -354,7 +354,8 @@ _UNWRAP_DESCRIPTION = (
     "off; single shot: exact rollover counts and PSNR) and the summary line gives the means; the "
     "decoder's warnings (exposure ratios too large for the noise) are printed and kept in the report. "
     "Mosaics of a colour sensor (the pattern recorded in the stack, or --cfa) are unwrapped first (multi "
-    "shot per photosite, single shot with unwrap_single(..., cfa=...)) and then demosaiced to RGB radiance "
+    "shot with unwrap_multi(..., cfa=...), each colour plane apart, single shot with unwrap_single(..., cfa=...)) "
+    "and then demosaiced to RGB radiance "
     "(torch_modulo.cfa.demosaic), which is scored against the RGB truth."
 )
 _UNWRAP_EXAMPLES = (

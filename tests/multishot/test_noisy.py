@@ -71,17 +71,18 @@ class TestNoisyDecoding:
         assert 0.8 < float(z.std()) < 1.25
         assert abs(float(z.mean())) < 0.1
 
+    @pytest.mark.parametrize("spatial", [True, False], ids=["spatial", "alone"])
     @pytest.mark.parametrize("preset", ["photon-counting", "q16"])
-    def test_flat_fields_are_unbiased(self, preset: str) -> None:
+    def test_flat_fields_are_unbiased(self, preset: str, spatial: bool) -> None:
         # Flat fields decoded from the plan for 15 stops: the mean is no further from the truth than that of the
         # longest frame alone with its rollover known, (c + 1/2) / tau, plus 0.1 + 0.5% (the clip at zero biases
         # every non-negative estimate near zero). The old estimate put black at 1.4 counts (photon-counting).
         noise = NoiseModel.preset(preset)
-        taus = tm.plan_exposures(15, 8, noise=noise, longest=1.0)
+        taus = tm.plan_exposures(15, 8, noise=noise, longest=1.0, spatial=spatial)
         levels = torch.tensor([0.0, 0.25, 1.0, 4.0, 16.0, 100.0, 1000.0], dtype=torch.float64)
         radiance = levels.view(-1, 1, 1, 1).expand(-1, 1, 48, 48)
         moduli = SimulatedModuloSensor(8, noise, seed=11)(radiance, taus).moduli
-        decoded = tm.unwrap_multi(moduli, taus, 8, noise=noise).mean(dim=(1, 2, 3))
+        decoded = tm.unwrap_multi(moduli, taus, 8, noise=noise, spatial=spatial).mean(dim=(1, 2, 3))
         alone = SimulatedIntensitySensor(53, noise, seed=12)(radiance, [1.0]).frames[:, 0]
         reference = (alone + 0.5).mean(dim=(1, 2, 3))
         allowed = (reference - levels).abs() + 0.1 + 0.005 * levels
