@@ -9,6 +9,7 @@ with ``"learned"``'s ``cells``, solved as two half-resolution colour images of i
 
 from __future__ import annotations
 
+import time
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Literal, overload
@@ -30,7 +31,8 @@ from torch_modulo._checks import (
     like_memory_format,
 )
 from torch_modulo.cfa import cfa_colours, check_cfa, interpolate_wrapped, merge_planes, mosaic, split_planes
-from torch_modulo.singleshot.learned.solver import mosaic_spec, solves_cells
+from torch_modulo.singleshot.anchor import anchor_k
+from torch_modulo.singleshot.learned.solver import mosaic_spec, refine_photosites, refines_photosites, solves_cells
 from torch_modulo.singleshot.methods import REGISTRY, make_spec, solve_on_device
 from torch_modulo.singleshot.spec import SolverSpec
 from torch_modulo.singleshot.workers import check_workers, run_planes
@@ -160,7 +162,40 @@ def _solve_mosaic(
     out, info = _solve(guide, mosaic_spec(spec), workers)
     if info.confidence is not None:
         info.confidence = mosaic(info.confidence, cfa).reshape(modulus.shape)
-    return mosaic(out, cfa).reshape(modulus.shape), info
+    out = mosaic(out, cfa).reshape(modulus.shape)
+    if refines_photosites(spec):
+        out = _refine_photosites(modulus, out, spec, cfa, info)
+    return out, info
+
+
+def _refine_photosites(
+    modulus: torch.Tensor, restored: torch.Tensor, spec: SolverSpec, cfa: str, info: SingleShotInfo
+) -> torch.Tensor:
+    """The guide's restored mosaic with its photosites' rollover counts moved by
+    :func:`~torch_modulo.singleshot.learned.refine_photosites` in the two half-resolution colour images (R, G1, B)
+    and (R, G2, B) of its cells (the first gives red, blue and the first green, the second the other green), each
+    plane then anchored again; the refinement's time is added to ``info.seconds``."""
+    start = time.perf_counter()
+    h, w = modulus.shape[-2:]
+    planes = split_planes(modulus.reshape(-1, 1, h, w))
+    solved = split_planes(restored.reshape(-1, 1, h, w)).to(torch.float64)
+    colours = cfa_colours(cfa)
+    r, b = colours.index(0), colours.index(2)
+    g1, g2 = (i for i, c in enumerate(colours) if c == 1)
+    period, bits = spec.params.period, spec.params.bits
+    out = solved.clone()
+    for item, (m, s) in enumerate(zip(planes, solved, strict=True)):
+        for image, keep in (([r, g1, b], (r, g1, b)), ([r, g2, b], (g2,))):
+            k = ((s[image] - m[image].to(torch.float64)) / period).round().to(device="cpu", dtype=torch.int64).numpy()
+            k = refine_photosites(m[image], k, spec)
+            moduli = m[image].to(device="cpu", dtype=torch.int64).numpy()
+            for plane in keep:
+                i = image.index(plane)
+                anchored = anchor_k(k[i], spec.anchor_fraction, modulus=moduli[i], bits=bits)
+                out[item, plane] = torch.from_numpy(moduli[i] + period * anchored).to(out)
+        info.seconds[item] += (time.perf_counter() - start) / info.seconds.shape[1]
+        start = time.perf_counter()
+    return like_memory_format(merge_planes(out.to(restored.dtype)).reshape(restored.shape), restored)
 
 
 def _solve_cells(

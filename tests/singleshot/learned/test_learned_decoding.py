@@ -10,9 +10,10 @@ import pytest
 import torch
 from learned_helpers import oracle_logp, scene, spec  # tests/singleshot/learned/
 
-from torch_modulo.cfa import merge_planes, mosaic, split_planes
+from torch_modulo.cfa import interpolate_wrapped, merge_planes, mosaic, split_planes
 from torch_modulo.singleshot import unwrap_single
 from torch_modulo.singleshot.learned import (
+    BAND,
     MAX_COST,
     MOSAIC_CUTS,
     EdgeJumpNet,
@@ -21,6 +22,7 @@ from torch_modulo.singleshot.learned import (
     decoding,
     edge_features,
     learned_k,
+    load_levels,
     load_model,
     mosaic_spec,
     pair_costs,
@@ -33,6 +35,19 @@ from torch_modulo.singleshot.learned import (
 from torch_modulo.singleshot.learned.inference import _unflip
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/singleshot/conftest.py
+
+
+def _level_energy(m: np.ndarray, k: np.ndarray, cost: np.ndarray, first: np.ndarray, u: np.ndarray) -> float:
+    """What the level moves lower on one plane: every pair's jump cost plus every 2 x 2 block's level cost, at the
+    whole plane's level offset the costs prefer (anchoring moves the plane by a constant)."""
+    pairs = sum(float(x.sum()) for x in pair_costs(m, k, cost, first, 256))
+    h, w = m.shape
+    per_pixel = u.astype(np.float64)[:, np.arange(h)[:, None] // 2, np.arange(w)[None] // 2]
+    levels = per_pixel.shape[0]
+    return pairs + min(
+        float(np.take_along_axis(per_pixel, np.clip(k + g, 0, levels - 1)[None], 0).sum())
+        for g in range(-levels, levels + 1)
+    )
 
 
 class TestDecoders:
@@ -98,9 +113,39 @@ class TestDecoders:
         assert dict(mosaic_spec(spec("learned", max_cuts=0)).options) == {"max_cuts": 0, "levels": False}
         rgb = torch.from_numpy(np.stack([scene(16, s) for s in range(3)])).float()
         m = mosaic(rgb, "GRBG") % 256
-        out = unwrap_single(m, cfa="GRBG")
+        out = unwrap_single(m, cfa="GRBG", levels=False)  # the guide alone: no refinement of the photosites
         assert torch.equal(out, unwrap_single(m, cfa="GRBG", max_cuts=MOSAIC_CUTS, levels=False))
-        assert torch.equal(torch.remainder(out, 256), m)
+        guide = unwrap_single(interpolate_wrapped(m[None], "GRBG"), max_cuts=MOSAIC_CUTS, levels=False)
+        assert torch.equal(out, mosaic(guide, "GRBG")[0]) and torch.equal(torch.remainder(out, 256), m)
+        assert solver.refines_photosites(spec("learned")) and solver.refines_photosites(spec("learned", levels=True))
+        assert not solver.refines_photosites(spec("learned", levels=False))
+        assert not solver.refines_photosites(spec("learned", cells=True))
+        assert not solver.refines_photosites(spec("guided"))
+
+    @pytest.mark.parametrize("cfa", ["RGGB", "GBRG"])
+    def test_mosaics_refine_the_guide_on_their_photosites(self, cfa: str) -> None:
+        # The guide's counts at the photosites are moved by the level moves of each half-resolution colour image of
+        # the cells, under that image's own network costs: they never cost more there than the guide's, and every
+        # output is the modulus plus whole periods, anchored per colour plane (k = 0 at its darkest region).
+        rgb = torch.from_numpy(np.stack([scene(48, s) for s in range(3)])).float()
+        m = mosaic(rgb, cfa) % 256
+        out = unwrap_single(m, cfa=cfa)
+        guide = unwrap_single(m, cfa=cfa, levels=False)
+        assert torch.equal(torch.remainder(out, 256), m) and out.shape == m.shape
+        planes, refined, start = (split_planes(x[None])[0] for x in (m, out, guide))
+        r, g1, g2, b = (cfa.index("R"), cfa.index("G"), cfa.rindex("G"), cfa.index("B"))
+        for image in ([r, g1, b], [r, g2, b]):
+            moduli = planes[image]
+            jump, cost, u = predict_jumps(load_model(), moduli, 8, band=BAND, levels=load_levels())
+            first = jump.astype(np.int64) - BAND
+            ints = moduli.to(torch.int64).numpy()
+            energies = []
+            for restored in (refined[image], start[image]):
+                k = ((restored - moduli) / 256).round().to(torch.int64).numpy()
+                energies.append(sum(_level_energy(ints[c], k[c], cost[c], first[c], u[c]) for c in range(3)))
+            assert energies[0] <= energies[1] + 1e-6
+        k = ((refined - planes) / 256).round()
+        assert all(float(k[c].min()) == 0.0 for c in range(4))
 
     @pytest.mark.parametrize("cfa", ["RGGB", "GRBG"])
     def test_mosaic_cells_are_two_half_resolution_colour_images(self, cfa: str) -> None:

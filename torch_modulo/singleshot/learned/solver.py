@@ -40,6 +40,8 @@ __all__ = [
     "learned_k",
     "mosaic_spec",
     "network_threads",
+    "refine_photosites",
+    "refines_photosites",
     "solve_learned",
     "solve_learned_tensor",
     "solves_cells",
@@ -113,22 +115,14 @@ def learned_k(
     if min(x.shape[-2:]) < MIN_LEVEL_SIDE:  # too thin for the level head's 2-D view
         level_net = None
     band = BAND if max_cuts or level_net is not None else 0
-    x_net = x.to(device=device, dtype=torch.float32)
-    with network_threads(threads if device.type == "cpu" else 0):
-        if level_net is not None and not augment and _same_network(level_net.trunk, net):  # one run of the encoder
-            jump, cost, u = predict_jumps(net, x_net, bits, augment, tile, band, level_net)
-        else:
-            jump, cost = predict_jumps(net, x_net, bits, augment, tile, band)
-            if level_net is not None:
-                level_device = next(level_net.parameters()).device
-                u = predict_levels(level_net, x.to(device=level_device, dtype=torch.float32), bits, tile)
+    jump, cost, u = _network_costs(x, bits, net, level_net, augment, tile, band, threads)
 
     def decode(i: int) -> None:  # one channel, from its int64 moduli
         plane = x[i].to(device="cpu", dtype=torch.int64).numpy()
         k[i], confidence[i] = decode_jumps(plane, jump[i], cost[i, :, band] if band else cost[i], bits)
         if max_cuts:
             k[i] = refine_band(plane, k[i], cost[i], jump[i].astype(np.int64) - band, bits, max_cuts)
-        if level_net is not None:  # last: the cuts weigh the pairs alone and would undo what the levels moved
+        if u is not None:  # last: the cuts weigh the pairs alone and would undo what the levels moved
             k[i] = region_moves(plane, k[i], cost[i], jump[i].astype(np.int64) - band, u[i], bits)
 
     # numpy and scipy let go of the GIL for most of the decoding: the channels run side by side on torch's threads
@@ -140,6 +134,65 @@ def learned_k(
         for i in range(x.shape[0]):
             decode(i)
     return k, confidence
+
+
+def _network_costs(
+    x: torch.Tensor,
+    bits: int,
+    net: EdgeJumpNet,
+    level_net: LevelNet | None,
+    augment: bool,
+    tile: int,
+    band: int,
+    threads: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The jumps, their costs (with ``band``) and the level costs (None without ``level_net``) of (C, H, W) moduli
+    ``x``, each network on its own device: one run of the encoder where the level network's trunk is ``net``."""
+    device = next(net.parameters()).device
+    x_net = x.to(device=device, dtype=torch.float32)
+    with network_threads(threads if device.type == "cpu" else 0):
+        if level_net is not None and not augment and _same_network(level_net.trunk, net):  # one run of the encoder
+            jump, cost, u = predict_jumps(net, x_net, bits, augment, tile, band, level_net)
+            return jump, cost, u
+        jump, cost = predict_jumps(net, x_net, bits, augment, tile, band)
+        if level_net is None:
+            return jump, cost, None
+        level_device = next(level_net.parameters()).device
+        return jump, cost, predict_levels(level_net, x.to(device=level_device, dtype=torch.float32), bits, tile)
+
+
+def refines_photosites(spec: SolverSpec) -> bool:
+    """Whether a mosaic solved through its interpolated guide (``unwrap_single(..., cfa=...)``) with ``spec`` then
+    has its photosites' rollover counts moved by :func:`refine_photosites`: ``"learned"`` by default (its option
+    ``levels`` not False, ``cells`` False)."""
+    if spec.method != "learned" or solves_cells(spec):
+        return False
+    return spec.option("levels") is not False
+
+
+def refine_photosites(moduli: torch.Tensor, k: np.ndarray, spec: SolverSpec) -> np.ndarray:
+    """``k`` (not anchored) of one colour image of photosites, (3, h, w) moduli of one colour each (the (R, G, B)
+    of every 2 x 2 cell of a mosaic, nothing interpolated), moved by the level moves
+    (:func:`~torch_modulo.singleshot.learned.region_moves`) under the networks' costs of that image itself.
+
+    A mosaic's guide is solved from interpolated colours, which mislead the tree and the cuts where a region's
+    border is steep (docs/cfa.md); the image of its photosites has only measured values, and the moves lower the
+    jump and level costs its own networks give, starting from the guide's counts (the cells' own tree puts other
+    regions a period off). The networks run on the moduli's device, with ``spec``'s ``weights``, ``levels``,
+    ``tile`` and ``threads``; planes thinner than :data:`MIN_LEVEL_SIDE` are returned as they are.
+    """
+    device = moduli.device
+    level_net = _level_network(spec.option("levels"), device)
+    if level_net is None or min(k.shape[-2:]) < MIN_LEVEL_SIDE:
+        return k
+    net = load_model(spec.option("weights"), device=device)
+    bits = spec.params.bits
+    tile, threads = int(spec.option("tile")), int(spec.option("threads"))
+    jump, cost, u = _network_costs(moduli, bits, net, level_net, False, tile, BAND, threads)
+    assert u is not None
+    planes = moduli.to(device="cpu", dtype=torch.int64).numpy()
+    first = jump.astype(np.int64) - BAND
+    return np.stack([region_moves(p, k[i], cost[i], first[i], u[i], bits) for i, p in enumerate(planes)])
 
 
 @contextlib.contextmanager
