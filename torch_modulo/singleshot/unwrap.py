@@ -4,7 +4,8 @@ It checks the input, turns a batch into planes, has them solved by the method of
 (:data:`~torch_modulo.singleshot.methods.REGISTRY`: on the input's device for the methods with a tensor solver,
 else in worker processes, :mod:`torch_modulo.singleshot.workers`) and assembles the restored counts and a
 :class:`SingleShotInfo`. A mosaic (``cfa=``) is interpolated on the circle first and solved as one colour image (or,
-with ``"learned"``'s ``cells``, solved as two half-resolution colour images of its photosites).
+with ``"learned"``'s ``cells``, solved as two half-resolution colour images of its photosites; by default
+``"learned"`` refines the guide's counts in those images).
 """
 
 from __future__ import annotations
@@ -337,10 +338,13 @@ def unwrap_single(
             are interpolated on the circle to full resolution (:func:`torch_modulo.cfa.interpolate_wrapped`), that
             RGB image is unwrapped (the methods that solve channels together share one tree across the colours),
             and the restored mosaic keeps each photosite's own count; the info has one entry per colour (C = 3).
-            ``"learned"`` then runs 4 min-cut moves after its tree and no level moves unless ``max_cuts`` or
-            ``levels`` is given (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`); with ``cells=True`` it
-            instead solves the photosites as two half-resolution colour images, the red, first green and blue
-            photosites of every 2 x 2 cell and the red, second green and blue ones (nothing interpolated).
+            ``"learned"`` then runs 4 min-cut moves after its tree and no level moves on the guide unless
+            ``max_cuts`` or ``levels`` is given (:data:`~torch_modulo.singleshot.learned.MOSAIC_CUTS`), and moves
+            the photosites' counts by its level moves in the two half-resolution colour images of the cells (the
+            red, first green and blue photosites of every 2 x 2 cell, and the red, second green and blue ones:
+            nothing interpolated) under those images' own network costs
+            (:func:`~torch_modulo.singleshot.learned.refine_photosites`; not with ``levels=False``); with
+            ``cells=True`` it instead solves those two images from their own trees.
             Demosaic the restored counts (:func:`torch_modulo.cfa.demosaic`), never the modulus.
         **options: method options. ``"fast"``: ``init`` (``"auto"``, ``"zeros"`` or ``"quality"``; default
             ``"auto"``), ``rel_tol`` (default 3e-4), ``window`` (default 64: the side of the windows of the

@@ -16,7 +16,8 @@ before it:
   (:func:`predict_jumps`, :func:`predict_levels`);
 - :mod:`~torch_modulo.singleshot.learned.levels`: region moves by the level head's costs (:class:`RegionMoves`);
 - :mod:`~torch_modulo.singleshot.learned.solver`: the method's options and the registry's solvers
-  (:func:`learned_k`, :func:`solve_learned`);
+  (:func:`learned_k`, :func:`solve_learned`), and a mosaic's photosites refined after its guide
+  (:func:`refine_photosites`);
 - :mod:`~torch_modulo.singleshot.learned.confidence`: :func:`learned_confidence` and :class:`LearnedConfidence`;
 - :mod:`~torch_modulo.singleshot.learned.loss`: the training loss (:func:`edge_loss`, :func:`edge_targets`); the
   recipe that made the shipped weights is ``references/learned_single``.
@@ -77,6 +78,8 @@ from torch_modulo.singleshot.learned.solver import (
     learned_k,
     mosaic_spec,
     network_threads,
+    refine_photosites,
+    refines_photosites,
     solve_learned,
     solve_learned_tensor,
     solves_cells,
@@ -124,6 +127,8 @@ __all__ = [
     "predict_levels",
     "refine_band",
     "refine_cut",
+    "refine_photosites",
+    "refines_photosites",
     "region_moves",
     "solve_learned",
     "solve_learned_tensor",
