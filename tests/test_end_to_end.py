@@ -273,7 +273,7 @@ class TestUnwrap:
         assert not calls  # the option reached unwrap_single
         meta = read_metadata(tmp_path / "out" / "img.exr")
         assert meta["solver"] == "learned" and meta["solver_options"] == {"levels": False}
-        assert meta["learned_version"] == 2
+        assert meta["learned_version"] == 3
         assert _cli("unwrap", tmp_path / "in", tmp_path / "out", *tree) == 0  # the same options: skipped
         assert _names(_report(tmp_path / "out", "unwrap")["skipped"]) == ["img.png"]
         assert (

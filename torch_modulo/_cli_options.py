@@ -355,8 +355,9 @@ def unwrap_options(args: argparse.Namespace, sub: argparse.ArgumentParser) -> di
     if method_options:
         options["solver_options"] = dict(sorted(method_options.items()))
     if args.single and method in (None, "learned"):
-        # "learned" moves regions by its level costs since version 2: its earlier outputs are not complete.
-        options["learned_version"] = 2
+        # "learned" moves regions by its level costs since version 2, and refines a mosaic's photosites since 3:
+        # its earlier outputs are not complete.
+        options["learned_version"] = 3
     if args.cfa is not None:
         options["cfa"] = args.cfa
     if not args.demosaic:
