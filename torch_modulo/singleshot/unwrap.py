@@ -32,7 +32,6 @@ from torch_modulo._checks import (
     like_memory_format,
 )
 from torch_modulo.cfa import cfa_colours, check_cfa, interpolate_wrapped, merge_planes, mosaic, split_planes
-from torch_modulo.singleshot.anchor import anchor_k
 from torch_modulo.singleshot.learned.solver import mosaic_spec, refine_photosites, refines_photosites, solves_cells
 from torch_modulo.singleshot.methods import REGISTRY, make_spec, solve_on_device
 from torch_modulo.singleshot.spec import SolverSpec
@@ -54,13 +53,15 @@ class SingleShotInfo:
         iterations: (B, C) int64, accepted moves.
         cuts: (B, C) int64, minimum cuts solved (accepted or not).
         energy: (B, C) float64, the energy of the returned image (it can differ from the last entry of
-            ``energies`` when anchoring clipped a few pixels below the darkest region to ``k = 0``).
+            ``energies`` when anchoring clipped a few pixels below the darkest region to ``k = 0``; of a mosaic,
+            that of its interpolated guide, before ``"learned"`` refines the photosites).
         seconds: (B, C) float64, wall time per plane.
         method: the method used.
         confidence: per-value confidence in ``(0, 1]`` from the same run, with the shape, dtype and device of the
             output, for the methods that give one (``"learned"``: the map of
             :func:`~torch_modulo.learned_confidence`, of the spanning tree before any ``max_cuts`` or ``levels``
-            moves; of a mosaic, that of its interpolated guide at each photosite), else None.
+            moves; of a mosaic, that of its interpolated guide at each photosite, before ``"learned"`` refines
+            them), else None.
     """
 
     energies: list[list[list[float]]] = field(default_factory=list)
@@ -147,8 +148,9 @@ def _solve_mosaic(
     modulus: torch.Tensor, spec: SolverSpec, workers: int | None, cfa: str
 ) -> tuple[torch.Tensor, SingleShotInfo]:
     """Unwrap a mosaic of the colour filter array ``cfa``: its wrapped RGB interpolated on the circle, solved at full
-    resolution as one colour image, then the photosites' own rollover counts; or, with ``"learned"``'s ``cells``,
-    its photosites as two half-resolution colour images (:func:`_solve_cells`)."""
+    resolution as one colour image, then the photosites' own rollover counts (with ``"learned"``, refined in the
+    cells' half-resolution colour images: :func:`_refine_photosites`); or, with ``"learned"``'s ``cells``, its
+    photosites as two half-resolution colour images (:func:`_solve_cells`)."""
     check_cfa(cfa)
     check_floating(modulus, "modulus")
     check_image_shape(modulus, "modulus", 2, 4)
@@ -174,29 +176,50 @@ def _refine_photosites(
 ) -> torch.Tensor:
     """The guide's restored mosaic with its photosites' rollover counts moved by
     :func:`~torch_modulo.singleshot.learned.refine_photosites` in the two half-resolution colour images (R, G1, B)
-    and (R, G2, B) of its cells (the first gives red, blue and the first green, the second the other green), each
-    plane then anchored again; the refinement's time is added to ``info.seconds``."""
+    and (R, G2, B) of its cells (the first gives red, blue and the first green, the second the other green).
+
+    Each refined plane keeps the guide's anchoring: it is moved by the one constant that leaves most of its counts
+    where the guide put them (so the two greens, anchored together in the guide's green channel, stay together), and
+    none is left below 0. An image with counts beyond its dtype's range (float16's inf) keeps the guide's. The
+    bookkeeping is in int64 on the CPU; the networks run on the input's device. The refinement's time is added to
+    ``info.seconds``."""
     start = time.perf_counter()
     h, w = modulus.shape[-2:]
     planes = split_planes(modulus.reshape(-1, 1, h, w))
-    solved = split_planes(restored.reshape(-1, 1, h, w)).to(torch.float64)
+    moduli = planes.to(device="cpu", dtype=torch.int64)
+    period = spec.params.period
+    k = (split_planes(restored.reshape(-1, 1, h, w)).to(device="cpu", dtype=torch.float64) - moduli) / period
+    k = k.round()  # inf where the guide's counts passed the dtype's range
     colours = cfa_colours(cfa)
     r, b = colours.index(0), colours.index(2)
     g1, g2 = (i for i, c in enumerate(colours) if c == 1)
-    period, bits = spec.params.period, spec.params.bits
-    out = solved.clone()
-    for item, (m, s) in enumerate(zip(planes, solved, strict=True)):
+    for item in range(len(k)):
+        if not bool(torch.isfinite(k[item]).all()):
+            continue
         for image, keep in (([r, g1, b], (r, g1, b)), ([r, g2, b], (g2,))):
-            k = ((s[image] - m[image].to(torch.float64)) / period).round().to(device="cpu", dtype=torch.int64).numpy()
-            k = refine_photosites(m[image], k, spec)
-            moduli = m[image].to(device="cpu", dtype=torch.int64).numpy()
+            guide = k[item, image].to(torch.int64).numpy()
+            moved = refine_photosites(planes[item, image], guide, spec)
             for plane in keep:
                 i = image.index(plane)
-                anchored = anchor_k(k[i], spec.anchor_fraction, modulus=moduli[i], bits=bits)
-                out[item, plane] = torch.from_numpy(moduli[i] + period * anchored).to(out)
+                k[item, plane] = torch.from_numpy(_keep_anchor(moved[i], guide[i])).to(k)
         info.seconds[item] += (time.perf_counter() - start) / info.seconds.shape[1]
         start = time.perf_counter()
-    return like_memory_format(merge_planes(out.to(restored.dtype)).reshape(restored.shape), restored)
+    out = merge_planes(moduli + period * k).reshape(restored.shape)
+    peak = float(out.nan_to_num(posinf=0.0).max()) if out.numel() else 0.0
+    before = float(restored.nan_to_num(posinf=0.0).max()) if restored.numel() else 0.0
+    out = like_memory_format(out.to(dtype=restored.dtype, device=restored.device), restored)
+    if peak > before:  # a region moved up past what the guide restored: the dtype may not hold it
+        _warn_inexact(out, peak)
+    return out
+
+
+def _keep_anchor(moved: np.ndarray, guide: np.ndarray) -> np.ndarray:
+    """``moved`` less the constant by which most of it differs from ``guide`` (so where nothing moved it is the
+    guide's, anchored as the guide was), at least 0."""
+    step = (moved - guide).ravel()
+    low = int(step.min(initial=0))
+    offset = int(np.bincount(step - low).argmax()) + low if step.size else 0
+    return np.maximum(moved - offset, 0)
 
 
 def _solve_cells(
@@ -364,8 +387,8 @@ def unwrap_single(
             moves),
             ``augment`` (default False: True averages the network over the image's four flips), ``tile`` (default
             768: the network and its level head predict tiles of that side with their context, which bounds
-            memory; 0: the whole image), ``threads`` (default 1: the torch threads the networks run on on the CPU;
-            0: all of torch's), ``cells`` (default False; see ``cfa``). ``"lsq"``:
+            memory; 0: the whole image), ``threads`` (default 0: all of torch's threads for the networks on the
+            CPU; 1 is faster on cores shared with other jobs), ``cells`` (default False; see ``cfa``). ``"lsq"``:
             ``iterations`` (default 3: reweighting rounds; 0: the unweighted solution, one DCT solve),
             ``cg_iterations`` (default 10: conjugate-gradient steps per round), ``colour`` (default True: the
             channels of an image share their weights; False: each channel alone).

@@ -179,7 +179,7 @@ def refine_photosites(moduli: torch.Tensor, k: np.ndarray, spec: SolverSpec) -> 
     border is steep (docs/cfa.md); the image of its photosites has only measured values, and the moves lower the
     jump and level costs its own networks give, starting from the guide's counts (the cells' own tree puts other
     regions a period off). The networks run on the moduli's device, with ``spec``'s ``weights``, ``levels``,
-    ``tile`` and ``threads``; planes thinner than :data:`MIN_LEVEL_SIDE` are returned as they are.
+    ``augment``, ``tile`` and ``threads``; planes thinner than :data:`MIN_LEVEL_SIDE` are returned as they are.
     """
     device = moduli.device
     level_net = _level_network(spec.option("levels"), device)
@@ -188,7 +188,7 @@ def refine_photosites(moduli: torch.Tensor, k: np.ndarray, spec: SolverSpec) -> 
     net = load_model(spec.option("weights"), device=device)
     bits = spec.params.bits
     tile, threads = int(spec.option("tile")), int(spec.option("threads"))
-    jump, cost, u = _network_costs(moduli, bits, net, level_net, False, tile, BAND, threads)
+    jump, cost, u = _network_costs(moduli, bits, net, level_net, spec.option("augment"), tile, BAND, threads)
     assert u is not None
     planes = moduli.to(device="cpu", dtype=torch.int64).numpy()
     first = jump.astype(np.int64) - BAND
@@ -289,7 +289,8 @@ def _check_count(value: object, name: str) -> int:
 #: (:data:`~torch_modulo.singleshot.learned.TILE`; 0: the whole image); ``threads``: the torch threads the networks
 #: run on on the CPU (default :data:`NETWORK_THREADS`; 0: all of torch's, :func:`network_threads`); ``cells``: a
 #: mosaic's photosites are solved as two half-resolution colour images (:func:`solves_cells`; default False: its
-#: interpolated guide, with :func:`mosaic_spec`'s options).
+#: interpolated guide, with :func:`mosaic_spec`'s options, then its photosites refined by :func:`refine_photosites`
+#: unless ``levels`` is False).
 LEARNED_OPTIONS: dict[str, tuple[Any, Callable[[Any, str], Any]]] = {
     "weights": (None, check_weights),
     "levels": (True, check_levels),
@@ -318,9 +319,10 @@ def solves_cells(spec: SolverSpec) -> bool:
     photosites (``"learned"`` with ``cells=True``) rather than as its wrapped colours interpolated to full resolution
     (the default, and every other method).
 
-    On the dev scenes mosaicked RGGB the cells were better on average and 3 times faster, but put other scenes a
-    period off where the guide did not, and were worse on the validation scenes (docs/singleshot.md, "Worst scenes
-    and speed").
+    On the dev scenes mosaicked RGGB the cells were better on average than the guide alone and 3 times faster, but
+    put other scenes a period off where the guide did not, and were worse on the validation scenes; the default,
+    the guide with its photosites refined in the cells' images (:func:`refine_photosites`), is better than both
+    (docs/singleshot.md, "Worst scenes and speed").
     """
     return spec.method == "learned" and bool(spec.option("cells"))
 
