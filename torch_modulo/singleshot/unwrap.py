@@ -198,7 +198,7 @@ def _refine_photosites(
             continue
         for image, keep in (([r, g1, b], (r, g1, b)), ([r, g2, b], (g2,))):
             guide = k[item, image].to(torch.int64).numpy()
-            moved = refine_photosites(planes[item, image], guide, spec)
+            moved = refine_photosites(planes[item, image], guide, spec, tuple(image.index(p) for p in keep))
             for plane in keep:
                 i = image.index(plane)
                 k[item, plane] = torch.from_numpy(_keep_anchor(moved[i], guide[i])).to(k)

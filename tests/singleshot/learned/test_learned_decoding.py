@@ -156,14 +156,15 @@ class TestDecoders:
 
         seen = []
 
-        def spy(moduli, k, chosen):
-            seen.append((tuple(moduli.shape), chosen.option("tile"), chosen.option("threads"), chosen.option("levels")))
+        def spy(moduli, k, chosen, channels):
+            options = (chosen.option("tile"), chosen.option("threads"), chosen.option("levels"))
+            seen.append((tuple(moduli.shape), *options, channels))
             return k
 
         monkeypatch.setattr(front, "refine_photosites", spy)
         m = mosaic(torch.from_numpy(np.stack([scene(16, s) for s in range(3)])).float(), "RGGB") % 256
         out = unwrap_single(m, cfa="RGGB", tile=64, threads=1)
-        assert seen == [((3, 8, 8), 64, 1, True)] * 2  # the two images of the cells
+        assert seen == [((3, 8, 8), 64, 1, True, (0, 1, 2)), ((3, 8, 8), 64, 1, True, (1,))]  # the cells' two images
         assert torch.equal(out, unwrap_single(m, cfa="RGGB", levels=False))  # nothing moved: the guide's
 
     @pytest.mark.parametrize("cfa", ["RGGB", "GRBG"])

@@ -170,7 +170,9 @@ def refines_photosites(spec: SolverSpec) -> bool:
     return spec.option("levels") is not False
 
 
-def refine_photosites(moduli: torch.Tensor, k: np.ndarray, spec: SolverSpec) -> np.ndarray:
+def refine_photosites(
+    moduli: torch.Tensor, k: np.ndarray, spec: SolverSpec, channels: tuple[int, ...] = (0, 1, 2)
+) -> np.ndarray:
     """``k`` (not anchored) of one colour image of photosites, (3, h, w) moduli of one colour each (the (R, G, B)
     of every 2 x 2 cell of a mosaic, nothing interpolated), moved by the level moves
     (:func:`~torch_modulo.singleshot.learned.region_moves`) under the networks' costs of that image itself.
@@ -180,6 +182,7 @@ def refine_photosites(moduli: torch.Tensor, k: np.ndarray, spec: SolverSpec) -> 
     jump and level costs its own networks give, starting from the guide's counts (the cells' own tree puts other
     regions a period off). The networks run on the moduli's device, with ``spec``'s ``weights``, ``levels``,
     ``augment``, ``tile`` and ``threads``; planes thinner than :data:`MIN_LEVEL_SIDE` are returned as they are.
+    Only ``channels`` are moved (the networks see all three); the others are returned as they are.
     """
     device = moduli.device
     level_net = _level_network(spec.option("levels"), device)
@@ -192,7 +195,10 @@ def refine_photosites(moduli: torch.Tensor, k: np.ndarray, spec: SolverSpec) -> 
     assert u is not None
     planes = moduli.to(device="cpu", dtype=torch.int64).numpy()
     first = jump.astype(np.int64) - BAND
-    return np.stack([region_moves(p, k[i], cost[i], first[i], u[i], bits) for i, p in enumerate(planes)])
+    out = k.copy()
+    for i in channels:
+        out[i] = region_moves(planes[i], k[i], cost[i], first[i], u[i], bits)
+    return out
 
 
 @contextlib.contextmanager
