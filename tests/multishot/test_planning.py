@@ -213,6 +213,46 @@ class TestPlanExposuresExtremes:
             assert float(decoded.median()) <= 1.5 * float(oracle.median())
 
 
+class TestShortLastStep:
+    """A plan whose ratios end a hair short of the longest exposure stretches them, rather than spend a frame on the
+    last hair (a frame lengthened to ``min_ratio``, past the longest exposure)."""
+
+    @staticmethod
+    def greedy(monkeypatch: pytest.MonkeyPatch, stops: float, noise: str, spatial: bool) -> list[float]:
+        with monkeypatch.context() as patch:
+            patch.setattr(tm.multishot.planning, "_STRETCH", 1.0)
+            return tm.plan_exposures(stops, 8, noise=noise, spatial=spatial)
+
+    @pytest.mark.parametrize("noise", ["q16", "photon-counting", "dfpa"])
+    @pytest.mark.parametrize("spatial", [True, False])
+    def test_stretched_by_at_most_one_percent_a_ratio(
+        self, monkeypatch: pytest.MonkeyPatch, noise: str, spatial: bool
+    ) -> None:
+        stretched = 0
+        for stops in [s / 2 for s in range(16, 97)]:  # 8 to 48 stops
+            plan = tm.plan_exposures(stops, 8, noise=noise, spatial=spatial)
+            greedy = self.greedy(monkeypatch, stops, noise, spatial)
+            if plan == greedy:
+                continue
+            stretched += 1
+            assert len(plan) == len(greedy) - 1
+            longest = 2.0**stops / tm.multishot.brightest_unwrapped(8, as_noise_model(noise))
+            assert plan[-1] == pytest.approx(longest, rel=1e-12) and greedy[-1] >= longest * (1 - 1e-12)
+            # Each exposure before the longest moves up by at most 1% per ratio before it (the shortest stays).
+            moved = [b / a for a, b in zip(greedy, plan[:-1], strict=False)]
+            assert moved[0] == 1.0 and all(1.0 <= m <= 1.01**i * (1 + 1e-12) for i, m in enumerate(moved))
+        assert stretched >= 1  # every noise and planner here has such stops (5 to 6 in 81 for the spatial plans)
+
+    def test_regression_twenty_stops_at_q16_take_six_frames(self) -> None:
+        # The ratios reached 0.997 times the longest exposure in five steps, and a sixth (ratio 3.1) went on to 3.1
+        # times past it: 7 frames.
+        plan = tm.plan_exposures(20, 8, noise="q16")
+        assert len(plan) == 6
+        assert plan[-1] == pytest.approx(2.0**20 / tm.multishot.brightest_unwrapped(8, as_noise_model("q16")))
+        # A budget of as many frames as the plan holds is met by it (the budget search sees the stretch too).
+        assert tm.plan_exposures(20, 8, noise="q16", frames=6) == pytest.approx(plan, rel=1e-12)
+
+
 class TestFrameBudget:
     @pytest.mark.parametrize("preset", ["photon-counting", "q16", "dfpa"])
     @pytest.mark.parametrize("frames", [3, 5, 8])

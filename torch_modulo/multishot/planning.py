@@ -10,10 +10,12 @@ Var(I)`` stays under the gate. The planner walks a grid of radiances through the
 ratio as large as the pixels that still need the next frame allow. A pixel needs it until its variance is within
 ``tolerance**2`` of what the longest exposure alone would give it (its oracle), unless it is already at the
 physical limit: a pixel whose next frame is undecodable even at ratio ``min_ratio`` is done. No neighbouring ratio
-is below ``min_ratio``: where what is left to reach the longest exposure is a shorter step, the frame before it
-moves down so that the last step is ``min_ratio`` (a shorter step decodes whatever the longer one did), or, where
-that step is too short to give up the room, the last frame moves up to ``min_ratio`` times the one before (every
-pixel that needed it decodes that step, and the darkest read more than one count there).
+is below ``min_ratio``. Where what is left to reach the longest exposure is a shorter step, and the ratios before it,
+each at most 1% longer (a gate of 2.97 deviations instead of 3), reach the longest exposure, they are stretched alike
+and that step is dropped (a frame saved). Else the frame before it moves down so that the last step is
+``min_ratio`` (a shorter step decodes whatever the longer one did), or, where that step is too short to give up the
+room, the last frame moves up to ``min_ratio`` times the one before (every pixel that needed it decodes that step,
+and the darkest read more than one count there).
 
 A budget of ``frames`` exposures: under noise, where the plan of ``tolerance`` fits, the plan of the smallest
 tolerance (>= 1) that fits (a smaller tolerance only adds frames, each bringing the pixels that still need one closer
@@ -126,6 +128,10 @@ def _largest_ratio(
     return (-b + torch.sqrt(b * b - 4 * a * c)) / (2 * a)
 
 
+#: How much longer than the gates allow each ratio of a noisy plan may be made so that the plan reaches its longest
+#: exposure without a last short step (a frame for less than ``min_ratio``): 1%, a gate of 2.97 instead of 3 deviations.
+_STRETCH = 1.01
+
 #: How much worse, in relative error, a spatial plan may leave a pixel at its physical limit than the per-pixel plan
 #: (see :func:`_spatial_min_ratio`).
 _LIMIT_SLACK = 1.1
@@ -231,7 +237,7 @@ def _noisy_plan(
     active = torch.ones_like(radiance, dtype=torch.bool)
     plan = [tau]
     while tau < longest * (1 - 1e-12):
-        if most is not None and len(plan) >= most:
+        if most is not None and len(plan) > most:  # (one frame more may still be stretched away below)
             return None
         if len(plan) >= _MAX_FRAMES:
             raise ValueError(
@@ -250,7 +256,16 @@ def _noisy_plan(
         active &= r <= ratios
         total = total + torch.where(active, tau**2 / noise.count_variance(tau * radiance), 0.0)
         plan.append(float(tau))
-    if len(plan) > 1 and plan[-1] < plan[-2] * min_ratio * (1 - 1e-12):
+    if (
+        len(plan) > 2
+        and plan[-1] < plan[-2] * min_ratio * (1 - 1e-12)
+        and plan[-1] <= plan[-2] * _STRETCH ** (len(plan) - 2)
+    ):
+        # The ratios before a short last step reach `longest` when each is a little longer: drop that frame.
+        stretch, steps = plan[-1] / plan[-2], len(plan) - 2
+        plan = [plan[0]] + [t * stretch ** ((i + 1) / steps) for i, t in enumerate(plan[1:-1])]
+        plan[-1] = longest
+    elif len(plan) > 1 and plan[-1] < plan[-2] * min_ratio * (1 - 1e-12):
         # The last step, what is left to reach `longest`, is shorter than a frame is worth. Shorten the step before
         # it so that the last one is min_ratio (a shorter step decodes whatever the longer one did); where that step
         # is too short for it, lengthen the last frame to min_ratio: every pixel that needed it decodes a step of
@@ -259,7 +274,7 @@ def _noisy_plan(
             plan[-2] = plan[-1] / min_ratio
         else:
             plan[-1] = plan[-2] * min_ratio
-    return plan
+    return None if most is not None and len(plan) > most else plan
 
 
 def plan_exposures(
