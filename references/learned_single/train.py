@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from references.learned_single.procedural import procedural_scene
 from torch_modulo import protocols
 from torch_modulo.capture import capture_intensity, modulo_wrap
-from torch_modulo.cfa import CFA_PATTERNS, cfa_colours, demosaic, interpolate_wrapped, mosaic, split_planes
+from torch_modulo.cfa import CFA_PATTERNS, demosaic, interpolate_wrapped, mosaic
 from torch_modulo.singleshot.learned import EdgeJumpNet, edge_features, edge_loss, edge_targets
 from torch_modulo.tonemap import luminance
 
@@ -142,17 +142,6 @@ def mosaic_pair(counts: torch.Tensor, cfa: str) -> tuple[torch.Tensor, torch.Ten
     return guide, guide + PERIOD * torch.round((smooth - guide) / PERIOD)
 
 
-def cell_image(counts: torch.Tensor, cfa: str, second: bool) -> torch.Tensor:
-    """The (3, H / 2, W / 2) true counts of one of the two colour images of a mosaic's cells that the photosites'
-    refinement of ``unwrap_single(..., cfa=cfa)`` sees: (R, G1, B), or with ``second`` (R, G2, B), of (3, H, W)
-    true counts mosaicked with ``cfa``."""
-    h, w = counts.shape[-2:]
-    planes = split_planes(mosaic(counts, cfa).reshape(1, 1, h, w))[0]
-    colours = cfa_colours(cfa)
-    green = [i for i, c in enumerate(colours) if c == 1][int(second)]
-    return planes[[colours.index(0), green, colours.index(2)]]
-
-
 def radiance_power(radiance: torch.Tensor, gamma: float) -> torch.Tensor:
     """``radiance ** gamma`` (negatives clamped to 0): another scene's dynamic range, ``gamma`` times the stops, with
     the same multiplicative structure (``(R L) ** gamma = R ** gamma L ** gamma``: textures under shading stay
@@ -173,28 +162,22 @@ def make_batch(
     Grey samples are repeated into the three channels. A share ``args.scene_exposure`` of the scene crops is exposed
     by their whole scene's percentile (``references``: :func:`exposure_references` of every scene); the others are
     raised to a power log-uniform in ``[1 / args.gamma, args.gamma]`` (:func:`radiance_power`) when ``args.gamma >
-    1``. A share ``args.mosaic`` of the samples is mosaicked with a random Bayer pattern first (:func:`mosaic_pair`);
-    a share ``args.cells`` is one colour image of the cells of a mosaic twice the size (:func:`cell_image`).
+    1``. A share ``args.mosaic`` of the samples is mosaicked with a random Bayer pattern first (:func:`mosaic_pair`).
     """
     wrapped, truth = [], []
     for _ in range(batch):
         scene = None
-        cells = args.cells > 0 and rng.random() < args.cells  # no draw when off: runs reproduce
-        side = 2 * size if cells else size
         if rng.random() < args.procedural:
-            radiance = procedural_scene(side, rng)
+            radiance = procedural_scene(size, rng)
         else:
-            radiance, index = random_crop(scenes, side, rng, tuple(args.scales), with_index=True)
+            radiance, index = random_crop(scenes, size, rng, tuple(args.scales), with_index=True)
             if args.scene_exposure > 0 and rng.random() < args.scene_exposure:  # no draw when off: runs reproduce
                 scene = references[index]
             if args.gamma > 1 and scene is None:  # no draw when off either (nor by a whole scene's exposure)
                 radiance = radiance_power(radiance, math.exp(rng.uniform(-math.log(args.gamma), math.log(args.gamma))))
         counts = capture_pair(radiance, rng, args.noise, scene).double()
         counts = counts.expand(3, -1, -1) if counts.shape[0] == 1 else counts
-        if cells:
-            counts = cell_image(counts, str(rng.choice(CFA_PATTERNS)), bool(rng.random() < 0.5))
-            guide = modulo_wrap(counts, BITS)
-        elif rng.random() < args.mosaic:
+        if rng.random() < args.mosaic:
             guide, counts = mosaic_pair(counts, str(rng.choice(CFA_PATTERNS)))
         else:
             guide = modulo_wrap(counts, BITS)
@@ -338,9 +321,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--procedural", type=float, default=0.3, help="share of procedural crops")
     ap.add_argument("--noise", type=float, default=0.15, help="share of crops with sensor noise")
     ap.add_argument("--mosaic", type=float, default=0.0, help="share of crops seen as Bayer mosaics")
-    ap.add_argument(
-        "--cells", type=float, default=0.0, help="share of crops seen as one colour image of a mosaic's cells"
-    )
     ap.add_argument(
         "--scene-exposure", type=float, default=0.0, help="share of scene crops exposed by the whole scene's percentile"
     )
