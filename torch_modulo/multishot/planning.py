@@ -11,11 +11,11 @@ ratio as large as the pixels that still need the next frame allow. A pixel needs
 ``tolerance**2`` of what the longest exposure alone would give it (its oracle), unless it is already at the
 physical limit: a pixel whose next frame is undecodable even at ratio ``min_ratio`` is done. No neighbouring ratio
 is below ``min_ratio``. Where what is left to reach the longest exposure is a shorter step, and the ratios before it,
-each at most 1% longer (a gate of 2.97 deviations instead of 3), reach the longest exposure, they are stretched alike
-and that step is dropped (a frame saved). Else the frame before it moves down so that the last step is
-``min_ratio`` (a shorter step decodes whatever the longer one did), or, where that step is too short to give up the
-room, the last frame moves up to ``min_ratio`` times the one before (every pixel that needed it decodes that step,
-and the darkest read more than one count there).
+each at most 1% longer (a gate 1% narrower in deviations: 2.97 for the default 3), reach the longest exposure, they
+are stretched alike and that step is dropped (a frame saved). Else the frame before it moves down so that the last
+step is ``min_ratio`` (a shorter step decodes whatever the longer one did), or, where that step is too short to give
+up the room, the last frame moves up to ``min_ratio`` times the one before (every pixel that needed it decodes that
+step, and the darkest read more than one count there).
 
 A budget of ``frames`` exposures: under noise, where the plan of ``tolerance`` fits, the plan of the smallest
 tolerance (>= 1) that fits (a smaller tolerance only adds frames, each bringing the pixels that still need one closer
@@ -129,7 +129,7 @@ def _largest_ratio(
 
 
 #: How much longer than the gates allow each ratio of a noisy plan may be made so that the plan reaches its longest
-#: exposure without a last short step (a frame for less than ``min_ratio``): 1%, a gate of 2.97 instead of 3 deviations.
+#: exposure without a last short step (a frame for less than ``min_ratio``): 1%: 2.97 deviations for 3.
 _STRETCH = 1.01
 
 #: How much worse, in relative error, a spatial plan may leave a pixel at its physical limit than the per-pixel plan
