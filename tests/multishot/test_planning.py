@@ -223,8 +223,11 @@ class TestShortLastStep:
             patch.setattr(tm.multishot.planning, "_STRETCH", 1.0)
             return tm.plan_exposures(stops, 8, noise=noise, spatial=spatial)
 
-    @pytest.mark.parametrize("noise", ["q16", "photon-counting", "dfpa"])
-    @pytest.mark.parametrize("spatial", [True, False])
+    # (dfpa's spatial plans take ratios at max_ratio, which no stretch may pass: it stretches none of them.)
+    @pytest.mark.parametrize(
+        ("noise", "spatial"),
+        [("q16", True), ("q16", False), ("photon-counting", True), ("photon-counting", False), ("dfpa", False)],
+    )
     def test_stretched_by_at_most_one_percent_a_ratio(
         self, monkeypatch: pytest.MonkeyPatch, noise: str, spatial: bool
     ) -> None:
@@ -241,7 +244,19 @@ class TestShortLastStep:
             # Each exposure before the longest moves up by at most 1% per ratio before it (the shortest stays).
             moved = [b / a for a, b in zip(greedy, plan[:-1], strict=False)]
             assert moved[0] == 1.0 and all(1.0 <= m <= 1.01**i * (1 + 1e-12) for i, m in enumerate(moved))
-        assert stretched >= 1  # every noise and planner here has such stops (5 to 6 in 81 for the spatial plans)
+        assert stretched >= 1  # each case here has such stops (6 in 81 for the spatial plans)
+
+    @pytest.mark.parametrize("max_ratio", [None, 12.0])
+    def test_a_stretch_keeps_max_ratio(self, max_ratio: float | None) -> None:
+        # A 4-bit dfpa plan's ratios sit at max_ratio (15 by default); a stretch took them to 15.02 - 15.14.
+        limit = 15.0 if max_ratio is None else max_ratio
+        for stops in [s / 4 for s in range(200)]:
+            plan = tm.plan_exposures(stops, 4, noise="dfpa", max_ratio=max_ratio)
+            assert (
+                max(b / a for a, b in zip(plan, plan[1:], strict=False)) <= limit * (1 + 1e-12)
+                if len(plan) > 1
+                else True
+            )
 
     def test_regression_twenty_stops_at_q16_take_six_frames(self) -> None:
         # The ratios reached 0.997 times the longest exposure in five steps, and a sixth (ratio 3.1) went on to 3.1

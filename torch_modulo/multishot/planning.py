@@ -256,16 +256,15 @@ def _noisy_plan(
         active &= r <= ratios
         total = total + torch.where(active, tau**2 / noise.count_variance(tau * radiance), 0.0)
         plan.append(float(tau))
-    if (
-        len(plan) > 2
-        and plan[-1] < plan[-2] * min_ratio * (1 - 1e-12)
-        and plan[-1] <= plan[-2] * _STRETCH ** (len(plan) - 2)
-    ):
-        # The ratios before a short last step reach `longest` when each is a little longer: drop that frame.
-        stretch, steps = plan[-1] / plan[-2], len(plan) - 2
-        plan = [plan[0]] + [t * stretch ** ((i + 1) / steps) for i, t in enumerate(plan[1:-1])]
+    short = len(plan) > 1 and plan[-1] < plan[-2] * min_ratio * (1 - 1e-12)
+    steps = len(plan) - 2  # the ratios before the last step
+    stretch = (plan[-1] / plan[-2]) ** (1.0 / steps) if short and steps > 0 else math.inf
+    if stretch <= _STRETCH and max(b / a for a, b in zip(plan[:-2], plan[1:-1], strict=True)) * stretch <= limit:
+        # The ratios before a short last step reach `longest` when each is a little longer (and still within
+        # `limit`): drop that frame.
+        plan = [plan[0]] + [t * stretch ** (i + 1) for i, t in enumerate(plan[1:-1])]
         plan[-1] = longest
-    elif len(plan) > 1 and plan[-1] < plan[-2] * min_ratio * (1 - 1e-12):
+    elif short:
         # The last step, what is left to reach `longest`, is shorter than a frame is worth. Shorten the step before
         # it so that the last one is min_ratio (a shorter step decodes whatever the longer one did); where that step
         # is too short for it, lengthen the last frame to min_ratio: every pixel that needed it decodes a step of
