@@ -244,6 +244,12 @@ class TestShortLastStep:
             # Each exposure before the longest moves up by at most 1% per ratio before it (the shortest stays).
             moved = [b / a for a, b in zip(greedy, plan[:-1], strict=False)]
             assert moved[0] == 1.0 and all(1.0 <= m <= 1.01**i * (1 + 1e-12) for i, m in enumerate(moved))
+            # Each ratio is the greedy one at most 1% longer, the last too where the greedy plan lengthened its last
+            # frame (the frame before it is then the walk's; where it moved that frame down instead, it is not).
+            ratios = [b / a for a, b in zip(plan, plan[1:], strict=False)]
+            walk = [b / a for a, b in zip(greedy, greedy[1:], strict=False)]
+            compared = len(ratios) if greedy[-1] > longest * (1 + 1e-9) else len(ratios) - 1
+            assert all(1 - 1e-12 <= r / g <= 1.01 * (1 + 1e-12) for r, g in zip(ratios[:compared], walk, strict=False))
         assert stretched >= 1  # each case here has such stops (6 in 81 for the spatial plans)
 
     @pytest.mark.parametrize("max_ratio", [None, 12.0])
@@ -357,6 +363,12 @@ class TestFrameBudget:
         for frames in range(3, len(default)):
             plan = plan_exposures(20, 8, noise=model, spatial=spatial, frames=frames)
             assert len(plan) <= frames and plan[0] == 1.0 and plan[-1] >= needed * (1 - 1e-9)
+
+    def test_regression_a_budget_of_256_frames_searches_on(self) -> None:
+        # A plan of 256 frames that a budget search had not yet ruled out raised "needs more than 256 exposures"
+        # (naming the search's tolerance, 1) instead of moving on to the next plan.
+        plan = plan_exposures(48, 4, noise="q16", min_ratio=1.1, tolerance=3.0, frames=256)
+        assert len(plan) <= 256
 
     def test_a_budget_of_a_scene_one_frame_covers(self) -> None:
         assert plan_exposures(4, 8, noise="q16", frames=3) == [1.0] == plan_exposures(4, 8, noise="q16")

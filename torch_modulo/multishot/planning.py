@@ -240,6 +240,8 @@ def _noisy_plan(
         if most is not None and len(plan) > most:  # (one frame more may still be stretched away below)
             return None
         if len(plan) >= _MAX_FRAMES:
+            if most is not None:  # a budget search goes on to the next plan (the message names its settings)
+                return None
             raise ValueError(
                 f"stops={stops:g} under {shown} needs more than {_MAX_FRAMES} exposures; raise tolerance (got "
                 f"{tolerance:g}) or min_ratio (got {min_ratio:g}), or plan fewer stops"
