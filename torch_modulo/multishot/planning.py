@@ -11,11 +11,11 @@ ratio as large as the pixels that still need the next frame allow. A pixel needs
 ``tolerance**2`` of what the longest exposure alone would give it (its oracle), unless it is already at the
 physical limit: a pixel whose next frame is undecodable even at ratio ``min_ratio`` is done. No neighbouring ratio
 is below ``min_ratio``. Where what is left to reach the longest exposure is a shorter step, and the ratios before it,
-each at most 1% longer (a gate 1% narrower in deviations: 2.97 for the default 3), reach the longest exposure, they
-are stretched alike and that step is dropped (a frame saved). Else the frame before it moves down so that the last
-step is ``min_ratio`` (a shorter step decodes whatever the longer one did), or, where that step is too short to give
-up the room, the last frame moves up to ``min_ratio`` times the one before (every pixel that needed it decodes that
-step, and the darkest read more than one count there).
+each at most 1% longer (a gate 1% narrower in deviations: 2.97 for the default 3) and none past ``max_ratio``, reach
+the longest exposure, they are stretched alike and that step is dropped (a frame saved). Else the frame before it
+moves down so that the last step is ``min_ratio`` (a shorter step decodes whatever the longer one did), or, where that
+step is too short to give up the room, the last frame moves up to ``min_ratio`` times the one before (every pixel that
+needed it decodes that step, and the darkest read more than one count there).
 
 A budget of ``frames`` exposures: under noise, where the plan of ``tolerance`` fits, the plan of the smallest
 tolerance (>= 1) that fits (a smaller tolerance only adds frames, each bringing the pixels that still need one closer
