@@ -190,9 +190,7 @@ def _refine_photosites(
     period = spec.params.period
     k = (split_planes(restored.reshape(-1, 1, h, w)).to(device="cpu", dtype=torch.float64) - moduli) / period
     k = k.round()  # inf where the guide's counts passed the dtype's range
-    colours = cfa_colours(cfa)
-    r, b = colours.index(0), colours.index(2)
-    g1, g2 = (i for i, c in enumerate(colours) if c == 1)
+    r, g1, b, g2 = _cell_planes(cfa)
     for item in range(len(k)):
         if not bool(torch.isfinite(k[item]).all()):
             continue
@@ -211,6 +209,14 @@ def _refine_photosites(
     if peak > before:  # a region moved up past what the guide restored: the dtype may not hold it
         _warn_inexact(out, peak)
     return out
+
+
+def _cell_planes(cfa: str) -> tuple[int, int, int, int]:
+    """The indices, among :func:`~torch_modulo.cfa.split_planes`' four planes of a ``cfa`` mosaic, of its red, first
+    green, blue and second green photosites: (R, G1, B) and (R, G2, B) are the cells' two colour images."""
+    colours = cfa_colours(cfa)
+    g1, g2 = (i for i, c in enumerate(colours) if c == 1)
+    return colours.index(0), g1, colours.index(2), g2
 
 
 def _keep_anchor(moved: np.ndarray, guide: np.ndarray) -> np.ndarray:
@@ -233,9 +239,7 @@ def _solve_cells(
     """
     h, w = modulus.shape[-2:]
     planes = split_planes(modulus.reshape(-1, 1, h, w))  # refuses odd sides, naming them
-    colours = cfa_colours(cfa)
-    r, b = colours.index(0), colours.index(2)
-    g1, g2 = (i for i, c in enumerate(colours) if c == 1)
+    r, g1, b, g2 = _cell_planes(cfa)
     first, info = _solve(planes[:, [r, g1, b]], spec, workers)
     second, info2 = _solve(planes[:, [r, g2, b]], spec, workers)
     order = [r, g1, b, g2]
