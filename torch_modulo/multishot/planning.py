@@ -264,8 +264,7 @@ def _noisy_plan(
     if stretch <= _STRETCH and max(b / a for a, b in zip(plan[:-2], plan[1:-1], strict=True)) * stretch <= limit:
         # The ratios before a short last step reach `longest` when each is a little longer (and still within
         # `limit`): drop that frame.
-        plan = [plan[0]] + [t * stretch ** (i + 1) for i, t in enumerate(plan[1:-1])]
-        plan[-1] = longest
+        plan = [t * stretch**i for i, t in enumerate(plan[:-2])] + [longest]
     elif short:
         # The last step, what is left to reach `longest`, is shorter than a frame is worth. Shorten the step before
         # it so that the last one is min_ratio (a shorter step decodes whatever the longer one did); where that step
