@@ -244,7 +244,10 @@ class TestScaling:
         assert stack.metadata["noise"] == NoiseModel.preset("q16").to_dict()
         unwrap_options = {"single": False, "bits": None, "exposure": None, "method": "robust", "solver": None}
         info = unwrap_job(Task("stack", str(tmp_path / "stack"), (str(tmp_path / "r.exr"),)), unwrap_options)
-        assert info["noise"] == "q16" and info["accuracy"]["gross_share"] == 0.0  # the stack's model, by default
+        # The stack's model, by default. Every pixel is drawn alone (a texture throughout), which the spatial plan's
+        # first ratio asks the neighbours for: 2 of the 768 values stop early (docs/multishot.md, "When to turn it
+        # off").
+        assert info["noise"] == "q16" and info["accuracy"]["gross_share"] < 0.005
         assert info["accuracy"]["median_relative_error"] < 0.05
 
 

@@ -12,7 +12,7 @@ import torch_modulo as tm
 from torch_modulo.multishot import noisy
 from torch_modulo.multishot.noisy import decode_noisy
 from torch_modulo.multishot.planning import _noisy_plan, _spatial_min_ratio
-from torch_modulo.multishot.spatial import neighbour_prediction
+from torch_modulo.multishot.spatial import neighbour_prediction, settle_counts
 from torch_modulo.sensors import NoiseModel, SimulatedIntensitySensor, SimulatedModuloSensor
 
 PHOTON = NoiseModel()
@@ -231,9 +231,91 @@ class TestSpatialDecoding:
             decode_noisy(torch.zeros(1, 2, 10), torch.tensor([[1.0, 2.0]]), 8, Q16, shape=(3, 3))
 
 
+class TestSettling:
+    @staticmethod
+    def _frame() -> tuple[torch.Tensor, ...]:
+        # A smooth ramp of counts (40 to 74 periods) and its moduli; predictions that err smoothly (as neighbours'
+        # shared estimates do), by a bump of 0.6 of a period at (3, 3) and 0.36 at its 4-neighbours. Where the error
+        # passes 0.3 of a period the pixels are candidates (at the bump's top the nearest count is a period high);
+        # the others are decided, right.
+        period = 256.0
+        y, x = torch.meshgrid(torch.arange(8.0), torch.arange(8.0), indexing="ij")
+        counts = 10240.0 + 900.0 * x + 350.0 * y + 0.3  # steps of 3.5 and 1.4 periods between neighbours
+        half = torch.remainder(counts, period) + 0.5
+        error = 0.6 * period * torch.exp(-((y - 3.0) ** 2 + (x - 3.0) ** 2) / 2.0)
+        expected = counts + 0.5 + error
+        nearest = ((expected - half) / period).round().clamp_min(0.0)
+        spread = torch.full((8, 8), (period / 2) ** 2)  # a prediction as loose as half a period
+        own = torch.full((8, 8), 40.0**2)
+        block = error > 0.3 * period
+        flat = [v.reshape(1, 64) for v in (half, nearest, expected, spread, own)]
+        decided, candidates = (~block).double().reshape(1, 64), block.double().reshape(1, 64)
+        return (*flat, decided, candidates, counts.reshape(1, 64))
+
+    def test_candidates_take_the_count_their_neighbours_pin(self) -> None:
+        half, nearest, expected, spread, own, decided, candidates, counts = self._frame()
+        truth = ((counts + 0.5 - half) / 256.0).round()
+        assert int((nearest != truth).sum()) == 1  # alone, the bump's top would be a period high
+        settled = settle_counts(half, nearest, expected, spread, own, decided, candidates, (8, 8), 256.0)
+        assert torch.equal(settled, truth)
+
+    def test_a_candidate_without_neighbours_keeps_its_nearest_count(self) -> None:
+        half, nearest, expected, spread, own, _, _, _ = self._frame()
+        alone = torch.zeros_like(half)
+        alone[0, 3 * 8 + 3] = 1.0
+        settled = settle_counts(half, nearest, expected, spread, own, torch.zeros_like(half), alone, (8, 8), 256.0)
+        assert torch.equal(settled, nearest)
+        # and nothing to settle returns the counts as they were
+        none = torch.zeros_like(half)
+        assert settle_counts(half, nearest, expected, spread, own, none, none, (8, 8), 256.0) is nearest
+
+    def test_the_candidates_alone_settle_as_the_whole_planes(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        # Eager, the step works on the gathered candidates; under torch.compile on whole planes: the same counts.
+        gen = torch.Generator().manual_seed(3)
+        shape = (2, 9, 11)
+        counts = 5000.0 + 400.0 * torch.rand(shape, generator=gen).cumsum(-1)
+        half = torch.remainder(counts, 256.0) + 0.5
+        expected = counts + 0.5 + 200.0 * torch.randn(shape, generator=gen)
+        nearest = ((expected - half) / 256.0).round().clamp_min(0.0)
+        spread = torch.full(shape, 150.0**2)
+        own = counts / 16.0
+        draw = torch.rand(shape, generator=gen)
+        decided, candidates = (draw < 0.5).float(), ((draw >= 0.5) & (draw < 0.9)).float()
+        args = [v.reshape(1, -1) for v in (half, nearest, expected, spread, own, decided, candidates)]
+        sparse = settle_counts(*args, (9, 11), 256.0, row0=1)
+        assert not torch.equal(sparse, args[1])  # some counts move
+        monkeypatch.setattr(torch.compiler, "is_compiling", lambda: True)
+        assert torch.equal(settle_counts(*args, (9, 11), 256.0, row0=1), sparse)
+
+    @pytest.mark.parametrize("noise", [PHOTON, Q16], ids=["q1", "q16"])
+    def test_settling_follows_bright_pixels_up_large_ratios(
+        self, monkeypatch: pytest.MonkeyPatch, noise: NoiseModel
+    ) -> None:
+        # The default spatial plan of a smooth scene: its bright pixels fail the prediction's gate at the larger
+        # ratios; settled against the frames' own differences they decode more frames, and end more precise,
+        # without a gross error more.
+        stops = 20
+        radiance = _smooth_scene(stops, size=64, seed=6)
+        taus = _plan(stops, noise, spatial=True)
+        moduli = SimulatedModuloSensor(8, noise, seed=7)(radiance, taus).moduli
+        flat = moduli.reshape(1, len(taus), -1).double()
+        tau = torch.tensor([taus], dtype=torch.float64)
+        estimate, _, used = decode_noisy(flat, tau, 8, noise, shape=(3 * 64, 64))
+        monkeypatch.setattr(noisy, "SETTLE_GATE", 0.0)
+        unsettled, _, used_before = decode_noisy(flat, tau, 8, noise, shape=(3 * 64, 64))
+        truth = radiance.reshape(1, -1)
+        bright = truth > torch.quantile(truth, 2 / 3)
+        assert float(used[bright].mean()) > float(used_before[bright].mean())
+        error, before = _rel(estimate, truth), _rel(unsettled, truth)
+        assert float(error[bright].median()) < 0.9 * float(before[bright].median())
+        assert float((error > 0.5).double().mean()) <= float((before > 0.5).double().mean())
+
+
 class TestSpatialPlans:
     def test_min_ratio_keeps_the_limit_precision(self) -> None:
-        assert 2.5 < _spatial_min_ratio(1.5, 255.0) < 4.0
+        # Settled against the frame's own differences, a pixel decodes up to the whole gate whatever the ratio, so
+        # the ratio that keeps a pixel at its limit within 1.18 times the per-pixel plan's precision is about 5.1.
+        assert 4.5 < _spatial_min_ratio(1.5, 255.0) < 6.0
         assert _spatial_min_ratio(2.0, 255.0) > _spatial_min_ratio(1.5, 255.0)
 
     @pytest.mark.parametrize("noise", [PHOTON, Q16, NoiseModel.preset("dfpa")], ids=["q1", "q16", "dfpa"])

@@ -54,7 +54,15 @@ from dataclasses import dataclass
 import torch
 
 from torch_modulo._chunks import chunk_on_cpu, column_chunks
-from torch_modulo.multishot.spatial import RADIUS, gates, neighbour_prediction, stored
+from torch_modulo.multishot.spatial import (
+    REACH,
+    SETTLE_FLOOR,
+    SETTLE_GATE,
+    gates,
+    neighbour_prediction,
+    settle_counts,
+    stored,
+)
 from torch_modulo.multishot.stack import wide_dtype
 from torch_modulo.noise import NoiseModel
 
@@ -238,19 +246,19 @@ def _decode_bands(
     outs: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
 ) -> None:
     """:func:`_decode` of one item's (1, M, n) moduli with spatial evidence, band of rows by band of rows of each
-    (H, W) plane, into ``outs`` (three (1, n) views). A band is decoded with ``RADIUS (M - 1)`` rows of context on
-    each side: each frame's prediction reaches ``RADIUS`` rows, so the rows beyond it cannot change the band's
-    result, which is the whole plane's."""
+    (H, W) plane, into ``outs`` (three (1, n) views). A band is decoded with ``REACH (M - 1)`` rows of context on
+    each side: each frame's decoding reaches ``REACH`` rows (its prediction and the settling of its counts), so the
+    rows beyond it cannot change the band's result, which is the whole plane's."""
     h, w = shape
     m = x.shape[1]
-    halo = RADIUS * (m - 1)
+    halo = REACH * (m - 1)
     band = max(_BAND // max(w, 1), 2 * halo, 1)
     work = outs[0].dtype
     for start in range(0, x.shape[2], h * w):  # plane by plane
         for top in range(0, h, band):
             low, high = max(top - halo, 0), min(top + band + halo, h)
             cols = slice(start + low * w, start + high * w)
-            out = _decode(x[:, :, cols].to(work), exposures, t, dark, table, *args[:4], (high - low, w))
+            out = _decode(x[:, :, cols].to(work), exposures, t, dark, table, *args[:4], (high - low, w), low)
             keep = slice((top - low) * w, (min(top + band, h) - low) * w)
             done = slice(start + top * w, start + min(top + band, h) * w)
             for target, part in zip(outs, out, strict=True):
@@ -268,6 +276,7 @@ def _decode(
     whole: float,
     model: _Counts,
     shape: tuple[int, int] | None,
+    row0: int = 0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Decode (B, M, w) moduli: the estimate of ``E + dark`` in the work unit (>= ``dark``), its variance and the
     frames used, each (B, w).
@@ -275,7 +284,9 @@ def _decode(
     ``exposures`` holds the M exposures ``t_i`` in the work unit, as numbers (one item) or (B, 1) tensors; ``t`` is
     the same as a (B, M) tensor, for the table lookups. Without ``shape`` a frame is decoded while the predicted
     count's variance is within ``gate``; with it (whole (H, W) planes) the prediction is the neighbours' and its
-    variance must be within ``gate``, the whole variance within ``whole``."""
+    variance must be within ``gate``, the whole variance within ``whole``, and the pixels that fail only the first
+    are settled against the frame's own differences (:func:`~torch_modulo.multishot.spatial.settle_counts`; ``row0``
+    is the first row's index in the image)."""
     m = x.shape[1]
     counts = [x[:, 0] + 0.5]  # count + 1/2 of each frame, its rollovers added
     used = torch.ones_like(counts[0])
@@ -291,6 +302,7 @@ def _decode(
         ti = exposures[i]
         total, weighted = keep(total), keep(weighted)
         inverse = 1.0 / total
+        settle = None
         if shape is None:
             expected = (weighted * inverse).mul_(ti)  # the predicted count + 1/2
             own = model.variance(expected)
@@ -300,10 +312,20 @@ def _decode(
             expected = guess.mul_(ti)
             own = model.variance(expected)
             spread = spread.mul_(ti * ti)
-            active = (own + spread).le_(whole).mul_(spread.le_(gate)).mul_(active)
+            passes = (own + spread).le_(whole).mul_(spread.le(gate)).mul_(active)
+            # The pixels that fail only the prediction's gate, and would be off by at most half at a wrong count even
+            # where the count is 2 deviations of the prediction below it.
+            low = expected - spread.sqrt().mul_(2.0)
+            candidates = (
+                own.le(whole).to(own.dtype).mul_(spread.le(SETTLE_GATE * gate)).mul_(low.ge_(SETTLE_FLOOR * period))
+            ).mul_(active - passes)
+            active = passes + candidates
+            settle = (expected, spread, own, passes, candidates)
         decoded.append(active)
         half = x[:, i] + 0.5
         k = (expected - half).div_(period).round_().clamp_min_(0.0)
+        if settle is not None and shape is not None:
+            k = settle_counts(half, k, *settle, shape, period, row0)
         counts.append(half.add_(k.mul_(period)))
         weight = (active * (ti * ti)).div_(own)  # the prediction's variance: independent of frame i
         total = total.add_(weight)  # in place, here and below: fewer fresh buffers, which cost more than the sums

@@ -134,7 +134,7 @@ _STRETCH = 1.01
 
 #: How much worse, in relative error, a spatial plan may leave a pixel at its physical limit than the per-pixel plan
 #: (see :func:`_spatial_min_ratio`).
-_LIMIT_SLACK = 1.1
+_LIMIT_SLACK = 1.18
 
 
 def _spatial_ratio(
@@ -162,22 +162,19 @@ def _spatial_min_ratio(min_ratio: float, limit: float) -> float:
 
     On a geometric plan of ratio ``r`` the prediction of a frame's count ``c`` has variance about ``(r - 1) c`` (the
     earlier frames hold ``c / (r - 1)`` counts), so a pixel alone decodes frames up to the count ``g / r`` where
-    its whole variance ``r c`` meets the gate ``g``, and with spatial evidence up to ``w / (1 + (r - 1) / n)`` (the
-    whole gate ``w``, ``n = PLANNED_SHRINK``) or ``g n / (r - 1)`` (the prediction's gate). The result is the
-    largest ``r`` whose :func:`_limit_error` there is within ``_LIMIT_SLACK`` times the per-pixel plan's at
-    ``min_ratio``: pixels at their physical limit end about as precise, with larger ratios."""
+    its whole variance ``r c`` meets the gate ``g``. With spatial evidence a pixel whose prediction fails its gate is
+    still settled against the frame's own differences while its own noise passes the whole gate ``w``
+    (:func:`~torch_modulo.multishot.spatial.settle_counts`), so it decodes frames up to ``w`` whatever the ratio. The
+    result is the largest ``r`` whose :func:`_limit_error` there is within ``_LIMIT_SLACK`` times the per-pixel
+    plan's at ``min_ratio``: pixels at their physical limit end about as precise, with larger ratios."""
     whole = 1.0 / WHOLE_SHARE**2  # the whole gate in units of the per-pixel gate
-
-    def spatial(r: float) -> float:
-        return _limit_error(r, min(whole / (1.0 + (r - 1.0) / PLANNED_SHRINK), PLANNED_SHRINK / (r - 1.0)))
-
     target = _LIMIT_SLACK * _limit_error(min_ratio, 1.0 / min_ratio)
     low, high = min_ratio, limit
-    if spatial(high) <= target:
+    if _limit_error(high, whole) <= target:
         return high
     for _ in range(60):
         mid = 0.5 * (low + high)
-        low, high = (mid, high) if spatial(mid) <= target else (low, mid)
+        low, high = (mid, high) if _limit_error(mid, whole) <= target else (low, mid)
     return max(low, min_ratio)
 
 
@@ -214,7 +211,7 @@ def _noisy_plan(
 
     With ``spatial``, the plan is for the decoder with spatial evidence (:mod:`~torch_modulo.multishot.spatial`):
     a frame is decodable where :func:`_spatial_ratio` allows, and ``min_ratio`` becomes :func:`_spatial_min_ratio`
-    (about 3.2 for 1.5): each ratio is as large as the pixels that still need the next frame allow, and no smaller
+    (about 5.1 for 1.5): each ratio is as large as the pixels that still need the next frame allow, and no smaller
     than where pixels at their physical limit keep about the per-pixel plan's precision."""
     gate = _gate(bits, sigmas)
     if spatial:
@@ -333,8 +330,9 @@ def plan_exposures(
             (the last frame may then lie past the exposure where ``E_min`` reads one count).
         frames: a budget of exposures (>= 1), or None for the fewest that meet ``tolerance``.
         spatial: with noise, plan for the decoder with spatial evidence (``unwrap_multi``'s default): its
-            predictions average agreeing neighbours, so the plan takes larger ratios (at least about 3.1 with the
-            default ``min_ratio``) and about half the frames. False: the plan for each pixel decoded alone
+            predictions average agreeing neighbours and the counts its prediction leaves uncertain are settled
+            against the frame's own differences, so the plan takes larger ratios (at least about 5.1 with the
+            default ``min_ratio``) and about a third of the frames. False: the plan for each pixel decoded alone
             (``unwrap_multi(..., spatial=False)``), which needs more frames but no neighbours: for images
             narrower than 3 pixels, or scenes of fine texture throughout (docs/multishot.md).
         longest_frames: how many frames take the longest exposure (>= 1). Only noise-aware decoding gains from the

@@ -21,6 +21,17 @@ Once the prediction is sharp, what limits a frame is that noise, and a wrong rol
 in a frame whose count is large (a few percent of the value, never a gross error). So with spatial evidence the
 decoder gates the two separately (see :func:`gates`): the prediction's spread at ``sigmas`` deviations, and the
 whole spread (prediction and the frame's own noise) at :data:`WHOLE_SHARE` ``* sigmas``.
+
+**The frame's own differences** (:func:`settle_counts`). A pixel whose prediction fails that gate, but whose own
+noise passes the whole gate, is not given up: it is a *candidate*, and its rollover count is settled as part of an
+image. Each candidate takes the count that best fits both its prediction (a Gaussian term with the prediction's and
+its own variance) and the frame's own count differences to its decoded or candidate 4-neighbours (a Huber term on the
+difference less the one the predictions expect, in units of the two counts' own noise): iterated conditional modes
+on the two colours of a checkerboard, a period up or down per step. Where the radiance is locally smooth the
+neighbours pin a count that its prediction alone leaves uncertain; a candidate's prediction must still be within
+:data:`SETTLE_GATE` times the prediction's gate, and its count at least :data:`SETTLE_FLOOR` periods (2 of the
+prediction's deviations below it), so that a count the step gets wrong is off by a period in a bright frame: at
+most half the value, never a gross error.
 """
 
 from __future__ import annotations
@@ -30,7 +41,18 @@ import math
 import torch
 import torch.nn.functional as F
 
-__all__ = ["PLANNED_SHRINK", "RADIUS", "WHOLE_SHARE", "gates", "neighbour_prediction", "stored"]
+__all__ = [
+    "PLANNED_SHRINK",
+    "RADIUS",
+    "REACH",
+    "SETTLE_FLOOR",
+    "SETTLE_GATE",
+    "WHOLE_SHARE",
+    "gates",
+    "neighbour_prediction",
+    "settle_counts",
+    "stored",
+]
 
 #: With spatial evidence, the whole spread of a predicted count (prediction and the frame's own noise) is gated at
 #: this share of ``sigmas`` deviations (2 at the default 3): wrong rollover counts from the frame's own noise cost
@@ -39,7 +61,21 @@ WHOLE_SHARE = 2.0 / 3.0
 
 #: The factor by which the planner takes the neighbours to reduce the prediction's variance (the pixel and its four
 #: pairs give 9 where all agree; agreement, texture and image borders leave fewer).
-PLANNED_SHRINK = 6.0
+PLANNED_SHRINK = 8.0
+
+#: :func:`settle_counts` takes candidates whose prediction's variance is within this many times the prediction's gate
+#: (three times its deviation: half a period is ``sigmas / 3`` deviations); where the prediction is that loose, the
+#: frame's own differences to the neighbours decide.
+SETTLE_GATE = 9.0
+
+#: :func:`settle_counts` takes candidates whose expected count is at least this many periods even 2 deviations of the
+#: prediction below it: a count it gets a period wrong is then at most half off, never a gross error.
+SETTLE_FLOOR = 2.0
+
+#: :func:`settle_counts`'s rounds (each visits both colours of the checkerboard once) and the Huber threshold of its
+#: pair terms, in deviations of the pair's own noise.
+_ROUNDS = 2
+_HUBER = 2.0
 
 #: The pairs of opposite neighbours, ``(dy, dx)`` and ``(-dy, -dx)``: the four lines through the pixel in its 3 x 3
 #: window (horizontal, vertical, two diagonals). (The eight of a 5 x 5 window, two pixels out on the same lines,
@@ -48,6 +84,13 @@ _PAIRS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 #: How far a prediction reaches, in pixels.
 RADIUS = max(max(abs(dy), abs(dx)) for dy, dx in _PAIRS)
+
+#: How far one frame's decoding reaches, in pixels: the prediction, then each half-round of :func:`settle_counts` one
+#: pixel further.
+REACH = RADIUS + 2 * _ROUNDS
+
+#: The 4-neighbours :func:`settle_counts` compares a count with.
+_NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0))
 
 
 @torch.library.custom_op("torch_modulo::spatial_buffer", mutates_args=())
@@ -143,3 +186,167 @@ def neighbour_prediction(
             pairs.add_(both)
     count = pairs.mul_(2.0).add_(1.0)  # the pixel and both members of each agreeing pair, equally weighted
     return shift.div_(count).add_(e).reshape(estimate.shape), (v / count).reshape(estimate.shape)
+
+
+def _shifted(v: torch.Tensor, dy: int, dx: int, fill: float | bool) -> torch.Tensor:
+    """``v`` (planes, H, W) read at ``(y + dy, x + dx)``, ``fill`` beyond the border."""
+    h, w = v.shape[-2:]
+    padded = F.pad(v.to(torch.float32) if v.dtype == torch.bool else v, (1, 1, 1, 1), value=float(fill))
+    out = padded[:, 1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+    return out > 0.5 if v.dtype == torch.bool else out
+
+
+def _huber(z: torch.Tensor) -> torch.Tensor:
+    a = z.abs()
+    return torch.where(a <= _HUBER, 0.5 * z * z, _HUBER * a - 0.5 * _HUBER * _HUBER)
+
+
+def settle_counts(
+    half: torch.Tensor,
+    rollovers: torch.Tensor,
+    expected: torch.Tensor,
+    spread: torch.Tensor,
+    own: torch.Tensor,
+    decided: torch.Tensor,
+    candidates: torch.Tensor,
+    shape: tuple[int, int],
+    period: float,
+    row0: int = 0,
+) -> torch.Tensor:
+    """The candidates' rollover counts of one frame, settled against the frame's own differences (module docstring).
+
+    Args:
+        half: (B, n) the frame's moduli + 1/2, ``n`` a whole number of (H, W) planes.
+        rollovers: (B, n) each pixel's rollover count nearest its prediction.
+        expected: (B, n) the predicted counts (+ 1/2); ``spread`` and ``own`` their prediction's and own variances.
+        decided: (B, n) 1.0 where the gates decoded the frame (its count is kept and anchors its candidates).
+        candidates: (B, n) 1.0 where the count is to be settled.
+        shape: ``(H, W)``.
+        period: ``2^N``.
+        row0: the first row's index in the whole image (the checkerboard's colours follow the image, so a band of
+            rows settles as the whole plane does).
+
+    Returns:
+        (B, n) the rollover counts: the candidates' settled, the others' as given.
+    """
+    h, w = shape
+    cand = candidates.reshape(-1, h, w) > 0
+    base = half.reshape(-1, h, w)
+    mu = expected.reshape(-1, h, w)
+    inside = cand | (decided.reshape(-1, h, w) > 0)
+    own_ = own.reshape(-1, h, w)
+    unary = 2.0 * (spread.reshape(-1, h, w) + own_)
+    rows = torch.arange(row0, row0 + h, device=base.device)
+    cols = torch.arange(w, device=base.device)
+    colour = ((rows[:, None] + cols[None, :]) % 2).expand_as(cand)
+    k = rollovers.reshape(-1, h, w)
+    if torch.compiler.is_compiling():
+        return _settle_dense(base, k, mu, unary, own_, inside, cand, colour, period).reshape(rollovers.shape)
+    if not bool(cand.any()):
+        return rollovers
+    return _settle_sparse(base, k, mu, unary, own_, inside, cand, colour, period).reshape(rollovers.shape)
+
+
+def _choice(
+    counts: torch.Tensor,
+    k: torch.Tensor,
+    mu: torch.Tensor,
+    unary: torch.Tensor,
+    pairs: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    period: float,
+) -> torch.Tensor:
+    """The step (-1, 0 or +1 period) of least energy for counts ``counts`` (rollover counts ``k``): the prediction's
+    term and, per neighbour, the Huber pair term; ``pairs`` stacks along a first dimension of 4 the neighbours'
+    (whether each takes part, the pair's scale, the expected difference, its counts). Every argument is the pixels'
+    own (dense planes or the gathered candidates)."""
+    there, scale, expect, other = pairs
+    steps = torch.tensor([0.0, -1.0, 1.0], dtype=counts.dtype, device=counts.device)  # no move first: a tie keeps it
+    moved = counts + (steps * period).view(3, *([1] * counts.dim()))
+    terms = torch.where(there, _huber((moved.unsqueeze(1) - other - expect) * scale), 0.0)  # (3, 4, ...)
+    energy = (moved - mu).square() / unary + terms[:, 0] + terms[:, 1] + terms[:, 2] + terms[:, 3]
+    down = (energy[1] < energy[0]) & (k >= 1)
+    best = torch.where(down, energy[1], energy[0])
+    up = energy[2] < best
+    return torch.where(up, 1.0, torch.where(down, -1.0, 0.0))
+
+
+def _stacked(
+    pairs: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]],
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The neighbours' (whether each takes part, the pair's scale, the expected difference), each stacked along a
+    first dimension of 4."""
+    there, scale, expect = zip(*pairs, strict=True)
+    return torch.stack(there), torch.stack(scale), torch.stack(expect)
+
+
+def _settle_dense(
+    base: torch.Tensor,
+    k: torch.Tensor,
+    mu: torch.Tensor,
+    unary: torch.Tensor,
+    own: torch.Tensor,
+    inside: torch.Tensor,
+    cand: torch.Tensor,
+    colour: torch.Tensor,
+    period: float,
+) -> torch.Tensor:
+    """:func:`settle_counts` on whole (planes, H, W) arrays, with static shapes (under ``torch.compile``)."""
+    pairs = [
+        (_shifted(inside, dy, dx, False), (own + _shifted(own, dy, dx, 1.0)).rsqrt(), mu - _shifted(mu, dy, dx, 0.0))
+        for dy, dx in _NEIGHBOURS
+    ]
+    fixed = _stacked(pairs)
+    for _ in range(_ROUNDS):
+        for side in (0, 1):
+            counts = base + k * period
+            other = torch.stack([_shifted(counts, dy, dx, 0.0) for dy, dx in _NEIGHBOURS])
+            choice = _choice(counts, k, mu, unary, (*fixed, other), period)
+            k = torch.where(cand & (colour == side), k + choice, k)
+    return k
+
+
+def _settle_sparse(
+    base: torch.Tensor,
+    k: torch.Tensor,
+    mu: torch.Tensor,
+    unary: torch.Tensor,
+    own: torch.Tensor,
+    inside: torch.Tensor,
+    cand: torch.Tensor,
+    colour: torch.Tensor,
+    period: float,
+) -> torch.Tensor:
+    """:func:`settle_counts` on the candidates alone, gathered by index (eager: the work follows their number, the
+    same arithmetic as :func:`_settle_dense`, so the same result)."""
+    h, w = k.shape[-2:]
+    n = k.numel()
+    flat_k = k.reshape(-1).clone()
+    flat_base, flat_mu, flat_own, flat_inside = (v.reshape(-1) for v in (base, mu, own, inside))
+    sides = []
+    for side in (0, 1):
+        index = (cand & (colour == side)).reshape(-1).nonzero().squeeze(1)
+        y, x = (index // w) % h, index % w
+        neighbours, pairs = [], []
+        for dy, dx in _NEIGHBOURS:
+            there = (y + dy >= 0) & (y + dy < h) & (x + dx >= 0) & (x + dx < w)
+            other = (index + dy * w + dx).clamp(0, n - 1)
+            there = there & flat_inside[other]
+            scale = (flat_own[index] + torch.where(there, flat_own[other], 1.0)).rsqrt()
+            neighbours.append(other)
+            pairs.append((there, scale, flat_mu[index] - torch.where(there, flat_mu[other], 0.0)))
+        sides.append(
+            (
+                index,
+                torch.stack(neighbours),
+                _stacked(pairs),
+                flat_mu[index],
+                unary.reshape(-1)[index],
+                flat_base[index],
+            )
+        )
+    for _ in range(_ROUNDS):
+        for index, others, fixed, mu_i, unary_i, base_i in sides:
+            k_i = flat_k[index]
+            other = flat_base[others] + flat_k[others] * period
+            flat_k[index] = k_i + _choice(base_i + k_i * period, k_i, mu_i, unary_i, (*fixed, other), period)
+    return flat_k.reshape(k.shape)
