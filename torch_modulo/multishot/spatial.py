@@ -37,6 +37,7 @@ most half the value, never a gross error.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -239,12 +240,27 @@ def settle_counts(
     rows = torch.arange(row0, row0 + h, device=base.device)
     cols = torch.arange(w, device=base.device)
     colour = ((rows[:, None] + cols[None, :]) % 2).expand_as(cand)
-    k = rollovers.reshape(-1, h, w)
+    frame = _Frame(base, rollovers.reshape(-1, h, w), mu, unary, own_, inside, cand, colour)
     if torch.compiler.is_compiling():
-        return _settle_dense(base, k, mu, unary, own_, inside, cand, colour, period).reshape(rollovers.shape)
+        return _settle_dense(frame, period).reshape(rollovers.shape)
     if not bool(cand.any()):
         return rollovers
-    return _settle_sparse(base, k, mu, unary, own_, inside, cand, colour, period).reshape(rollovers.shape)
+    return _settle_sparse(frame, period).reshape(rollovers.shape)
+
+
+class _Frame(NamedTuple):
+    """One frame's (planes, H, W) arrays for :func:`settle_counts`: the moduli + 1/2, the rollover counts, the
+    predictions, the prediction's Gaussian term's denominator ``2 (V_pred + V_own)``, the own variances, where a
+    neighbour takes part (decided or candidate), the candidates, and the checkerboard's colours."""
+
+    base: torch.Tensor
+    k: torch.Tensor
+    mu: torch.Tensor
+    unary: torch.Tensor
+    own: torch.Tensor
+    inside: torch.Tensor
+    cand: torch.Tensor
+    colour: torch.Tensor
 
 
 def _choice(
@@ -279,18 +295,9 @@ def _stacked(
     return torch.stack(there), torch.stack(scale), torch.stack(expect)
 
 
-def _settle_dense(
-    base: torch.Tensor,
-    k: torch.Tensor,
-    mu: torch.Tensor,
-    unary: torch.Tensor,
-    own: torch.Tensor,
-    inside: torch.Tensor,
-    cand: torch.Tensor,
-    colour: torch.Tensor,
-    period: float,
-) -> torch.Tensor:
+def _settle_dense(f: _Frame, period: float) -> torch.Tensor:
     """:func:`settle_counts` on whole (planes, H, W) arrays, with static shapes (under ``torch.compile``)."""
+    base, k, mu, unary, own, inside, cand, colour = f
     pairs = [
         (_shifted(inside, dy, dx, False), (own + _shifted(own, dy, dx, 1.0)).rsqrt(), mu - _shifted(mu, dy, dx, 0.0))
         for dy, dx in _NEIGHBOURS
@@ -305,19 +312,10 @@ def _settle_dense(
     return k
 
 
-def _settle_sparse(
-    base: torch.Tensor,
-    k: torch.Tensor,
-    mu: torch.Tensor,
-    unary: torch.Tensor,
-    own: torch.Tensor,
-    inside: torch.Tensor,
-    cand: torch.Tensor,
-    colour: torch.Tensor,
-    period: float,
-) -> torch.Tensor:
+def _settle_sparse(f: _Frame, period: float) -> torch.Tensor:
     """:func:`settle_counts` on the candidates alone, gathered by index (eager: the work follows their number, the
     same arithmetic as :func:`_settle_dense`, so the same result)."""
+    base, k, mu, unary, own, inside, cand, colour = f
     h, w = k.shape[-2:]
     n = k.numel()
     flat_k = k.reshape(-1).clone()
