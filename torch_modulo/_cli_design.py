@@ -20,7 +20,7 @@ _DESCRIPTION = (
     "stops spans E_min to 2**S E_min, where E_min reads one count at the longest exposure (1.0). The predictions are "
     "models of the library's decoders on a log-uniform ramp of radiances (benchmarks/bench_design.py checks them "
     "against simulation): by default the modulo decoder with spatial evidence on a smooth scene; --no-spatial plans "
-    "and predicts for each pixel decoded alone (about twice the frames; what a finely textured scene needs)."
+    "and predicts for each pixel decoded alone (2 to 3 times the frames; what a finely textured scene needs)."
 )
 
 

@@ -9,8 +9,8 @@ predicted median error is as low (:func:`~torch_modulo.multishot.prediction.plan
 prediction. ``torch-modulo design`` prints it.
 
 The predictions are models of the default decoders: the modulo one with spatial evidence, on a smooth scene (the
-ramp), where neighbours agree; ``spatial=False`` plans and predicts for each pixel decoded alone, which needs about
-twice the frames and is what a scene of fine texture throughout needs (docs/multishot.md). :func:`simulate_median`
+ramp), where neighbours agree; ``spatial=False`` plans and predicts for each pixel decoded alone, which needs 2 to
+3 times the frames and is what a scene of fine texture throughout needs (docs/multishot.md). :func:`simulate_median`
 checks a prediction against the library's own sensors and decoders on the same ramp of radiances (protocol D of the
 benchmarks; as an image whose columns hold the radiances, so that neighbours exist), and :func:`plot` draws both
 sensors' predicted relative error against radiance (matplotlib, the optional extra ``torch_modulo[plot]``).
