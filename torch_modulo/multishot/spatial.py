@@ -189,11 +189,12 @@ def neighbour_prediction(
     return shift.div_(count).add_(e).reshape(estimate.shape), (v / count).reshape(estimate.shape)
 
 
-def _shifted(v: torch.Tensor, dy: int, dx: int, fill: float | bool) -> torch.Tensor:
-    """``v`` (planes, H, W) read at ``(y + dy, x + dx)``, ``fill`` beyond the border."""
+def _around(v: torch.Tensor, fill: float | bool) -> torch.Tensor:
+    """``v`` (planes, H, W) read at each of :data:`_NEIGHBOURS`, ``fill`` beyond the border: (4, planes, H, W), from
+    one padded copy."""
     h, w = v.shape[-2:]
     padded = F.pad(v.to(torch.float32) if v.dtype == torch.bool else v, (1, 1, 1, 1), value=float(fill))
-    out = padded[:, 1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+    out = torch.stack([padded[:, 1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy, dx in _NEIGHBOURS])
     return out > 0.5 if v.dtype == torch.bool else out
 
 
@@ -232,20 +233,24 @@ def settle_counts(
     """
     h, w = shape
     cand = candidates.reshape(-1, h, w) > 0
-    base = half.reshape(-1, h, w)
-    mu = expected.reshape(-1, h, w)
-    inside = cand | (decided.reshape(-1, h, w) > 0)
-    own_ = own.reshape(-1, h, w)
-    unary = 2.0 * (spread.reshape(-1, h, w) + own_)
-    rows = torch.arange(row0, row0 + h, device=base.device)
-    cols = torch.arange(w, device=base.device)
-    colour = ((rows[:, None] + cols[None, :]) % 2).expand_as(cand)
-    frame = _Frame(base, rollovers.reshape(-1, h, w), mu, unary, own_, inside, cand, colour)
-    if torch.compiler.is_compiling():
-        return _settle_dense(frame, period).reshape(rollovers.shape)
-    if not bool(cand.any()):
+    compiling = torch.compiler.is_compiling()
+    if not compiling and not bool(cand.any()):
         return rollovers
-    return _settle_sparse(frame, period).reshape(rollovers.shape)
+    own_ = own.reshape(-1, h, w)
+    rows = torch.arange(row0, row0 + h, device=cand.device)
+    cols = torch.arange(w, device=cand.device)
+    frame = _Frame(
+        half.reshape(-1, h, w),
+        rollovers.reshape(-1, h, w),
+        expected.reshape(-1, h, w),
+        2.0 * (spread.reshape(-1, h, w) + own_),
+        own_,
+        cand | (decided.reshape(-1, h, w) > 0),
+        cand,
+        ((rows[:, None] + cols[None, :]) % 2).expand_as(cand),
+    )
+    settled = _settle_dense(frame, period) if compiling else _settle_sparse(frame, period)
+    return settled.reshape(rollovers.shape)
 
 
 class _Frame(NamedTuple):
@@ -276,8 +281,7 @@ def _choice(
     (whether each takes part, the pair's scale, the expected difference, its counts). Every argument is the pixels'
     own (dense planes or the gathered candidates)."""
     there, scale, expect, other = pairs
-    steps = torch.tensor([0.0, -1.0, 1.0], dtype=counts.dtype, device=counts.device)  # no move first: a tie keeps it
-    moved = counts + (steps * period).view(3, *([1] * counts.dim()))
+    moved = torch.stack([counts, counts - period, counts + period])  # no move first: a tie keeps the count
     terms = torch.where(there, _huber((moved.unsqueeze(1) - other - expect) * scale), 0.0)  # (3, 4, ...)
     energy = (moved - mu).square() / unary + terms[:, 0] + terms[:, 1] + terms[:, 2] + terms[:, 3]
     down = (energy[1] < energy[0]) & (k >= 1)
@@ -286,28 +290,14 @@ def _choice(
     return torch.where(up, 1.0, torch.where(down, -1.0, 0.0))
 
 
-def _stacked(
-    pairs: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]],
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The neighbours' (whether each takes part, the pair's scale, the expected difference), each stacked along a
-    first dimension of 4."""
-    there, scale, expect = zip(*pairs, strict=True)
-    return torch.stack(there), torch.stack(scale), torch.stack(expect)
-
-
 def _settle_dense(f: _Frame, period: float) -> torch.Tensor:
     """:func:`settle_counts` on whole (planes, H, W) arrays, with static shapes (under ``torch.compile``)."""
     base, k, mu, unary, own, inside, cand, colour = f
-    pairs = [
-        (_shifted(inside, dy, dx, False), (own + _shifted(own, dy, dx, 1.0)).rsqrt(), mu - _shifted(mu, dy, dx, 0.0))
-        for dy, dx in _NEIGHBOURS
-    ]
-    fixed = _stacked(pairs)
+    fixed = (_around(inside, False), (own + _around(own, 1.0)).rsqrt(), mu - _around(mu, 0.0))
     for _ in range(_ROUNDS):
         for side in (0, 1):
             counts = base + k * period
-            other = torch.stack([_shifted(counts, dy, dx, 0.0) for dy, dx in _NEIGHBOURS])
-            choice = _choice(counts, k, mu, unary, (*fixed, other), period)
+            choice = _choice(counts, k, mu, unary, (*fixed, _around(counts, 0.0)), period)
             k = torch.where(cand & (colour == side), k + choice, k)
     return k
 
@@ -320,27 +310,17 @@ def _settle_sparse(f: _Frame, period: float) -> torch.Tensor:
     n = k.numel()
     flat_k = k.reshape(-1).clone()
     flat_base, flat_mu, flat_own, flat_inside = (v.reshape(-1) for v in (base, mu, own, inside))
+    dy, dx = (torch.tensor(d, device=k.device).view(4, 1) for d in zip(*_NEIGHBOURS, strict=True))
     sides = []
     for side in (0, 1):
         index = (cand & (colour == side)).reshape(-1).nonzero().squeeze(1)
-        y, x = (index // w) % h, index % w
-        neighbours, pairs = [], []
-        for dy, dx in _NEIGHBOURS:
-            there = (y + dy >= 0) & (y + dy < h) & (x + dx >= 0) & (x + dx < w)
-            other = (index + dy * w + dx).clamp(0, n - 1)
-            there = there & flat_inside[other]
-            scale = (flat_own[index] + torch.where(there, flat_own[other], 1.0)).rsqrt()
-            neighbours.append(other)
-            pairs.append((there, scale, flat_mu[index] - torch.where(there, flat_mu[other], 0.0)))
+        y, x = (index // w) % h + dy, index % w + dx  # the neighbours' rows and columns, (4, candidates)
+        others = (index + dy * w + dx).clamp(0, n - 1)
+        there = (y >= 0) & (y < h) & (x >= 0) & (x < w) & flat_inside[others]
+        scale = (flat_own[index] + torch.where(there, flat_own[others], 1.0)).rsqrt()
+        expect = flat_mu[index] - torch.where(there, flat_mu[others], 0.0)
         sides.append(
-            (
-                index,
-                torch.stack(neighbours),
-                _stacked(pairs),
-                flat_mu[index],
-                unary.reshape(-1)[index],
-                flat_base[index],
-            )
+            (index, others, (there, scale, expect), flat_mu[index], unary.reshape(-1)[index], flat_base[index])
         )
     for _ in range(_ROUNDS):
         for index, others, fixed, mu_i, unary_i, base_i in sides:
